@@ -1,0 +1,181 @@
+"""The shared environment contract: ``State``, ``ActionSpec``, env configs and the ``Env`` base class.
+
+Shaped like MuJoCo Playground / Brax: an env is an object holding constants only; ``reset(key) -> State``
+and ``step(state, action) -> State`` are pure, jit- and vmap-able, and return new states (never mutate).
+Episode time limits and auto-reset are wrappers (``envs.wrappers``), as in Brax.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from pathlib import Path
+from typing import Any, ClassVar, Literal
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from envs.physics import Physics, PhysicsState, make_physics
+
+
+@struct.dataclass
+class State:
+    """One environment state (a pytree; batch it with ``jax.vmap``).
+
+    Attributes:
+        data: physics state (``PhysicsState``: qpos, qvel, time), the same type for both backends.
+        obs: observation, shape (observation_size,).
+        reward: scalar float.
+        done: scalar float, 1.0 when the episode *terminated* (success/failure). Time limits are the
+            ``EpisodeWrapper``'s business and show up as ``info["truncation"]``.
+        metrics: dict of scalar floats for logging (``metrics["success"]`` in every env).
+        info: dict for wrapper plumbing (step count, truncation, rng); never task data.
+        task: the env's typed task struct (goal id, objects, ...), fixed for an episode.
+    """
+
+    data: PhysicsState
+    obs: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    metrics: dict[str, jax.Array] = struct.field(default_factory=dict)
+    info: dict[str, Any] = struct.field(default_factory=dict)
+    task: Any = None
+
+
+@dataclasses.dataclass(frozen=True)
+class ActionSpec:
+    """What ``step`` accepts.
+
+    ``discrete``: an integer in [0, size) or, for RL libraries that only emit continuous vectors
+    (``brax.training.agents.ppo``), a float vector of ``size`` scores whose argmax is taken.
+    ``continuous``: a float vector of ``size`` entries, clipped to [low, high].
+    """
+
+    kind: Literal["discrete", "continuous"]
+    size: int
+    low: float = -1.0
+    high: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Fields every env config has; env-specific configs subclass this (frozen dataclasses)."""
+
+    episode_length: int = 50
+    """Steps before the episode is truncated (applied by ``envs.wrappers.EpisodeWrapper``)."""
+
+
+def replace_config(config: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
+    """``dataclasses.replace`` with one clear error for unknown keys or wrongly typed values."""
+    fields = {f.name: f for f in dataclasses.fields(config)}
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ValueError(
+            f"unknown option(s) {', '.join(map(repr, unknown))} for {type(config).__name__}; "
+            f"valid options: {', '.join(sorted(fields))}"
+        )
+    for key, value in overrides.items():
+        default = getattr(config, key)
+        ok = isinstance(value, type(default)) or (isinstance(default, float) and isinstance(value, int))
+        if isinstance(default, bool) != isinstance(value, bool) or not ok:
+            raise TypeError(
+                f"option {key!r} of {type(config).__name__} expects {type(default).__name__}, "
+                f"got {value!r} ({type(value).__name__})"
+            )
+    return dataclasses.replace(config, **overrides)
+
+
+class Env(abc.ABC):
+    """Base class of every talar-jax environment.
+
+    Subclasses set ``xml_path`` (the MJCF beside the env module) and ``config_class``, and implement
+    ``reset`` and ``step``. ``self`` holds constants only; all per-episode data lives in ``State``.
+    """
+
+    config_class: ClassVar[type[EnvConfig]] = EnvConfig
+    xml_path: ClassVar[Path]
+
+    def __init__(self, config: EnvConfig | None = None, physics: str = "mjx"):
+        self.config = config if config is not None else self.config_class()
+        if not isinstance(self.config, self.config_class):
+            raise TypeError(f"{type(self).__name__} expects a {self.config_class.__name__}, got {type(self.config)}")
+        self.mj_model = self.load_model()
+        self.physics: Physics = make_physics(physics, self.mj_model)
+
+    def load_model(self) -> mujoco.MjModel:
+        """Compiles the env's MJCF (override to edit the spec before compiling)."""
+        return mujoco.MjModel.from_xml_path(str(self.xml_path))
+
+    # --- the functional API -------------------------------------------------------------------------
+    @abc.abstractmethod
+    def reset(self, rng: jax.Array) -> State:
+        """Samples an initial state and a task."""
+
+    @abc.abstractmethod
+    def step(self, state: State, action: jax.Array) -> State:
+        """Applies ``action`` and returns the next state."""
+
+    # --- sizes --------------------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def action_spec(self) -> ActionSpec: ...
+
+    @property
+    @abc.abstractmethod
+    def num_goals(self) -> int: ...
+
+    @property
+    @abc.abstractmethod
+    def observation_size(self) -> int: ...
+
+    @property
+    def action_size(self) -> int:
+        return self.action_spec.size
+
+    @property
+    def episode_length(self) -> int:
+        return self.config.episode_length
+
+    @property
+    def backend(self) -> str:
+        return self.physics.name
+
+    @property
+    def unwrapped(self) -> Env:
+        return self
+
+    # --- helpers for subclasses ---------------------------------------------------------------------
+    def check_action(self, action: jax.Array) -> jax.Array:
+        """Validates an action's shape/dtype (and value, when concrete); returns it in canonical form.
+
+        Discrete envs return an int32 scalar; continuous envs a float32 vector clipped to [low, high].
+        Raises ``ValueError``/``TypeError`` with the expected form. Values can only be checked outside
+        ``jit``; inside, out-of-range integers are clipped to the valid range.
+        """
+        spec = self.action_spec
+        action = jnp.asarray(action)
+        if spec.kind == "discrete":
+            if jnp.issubdtype(action.dtype, jnp.integer):
+                if action.shape != ():
+                    raise ValueError(f"a discrete action is a scalar int in [0, {spec.size}), got shape {action.shape}")
+                if not isinstance(action, jax.core.Tracer):
+                    value = int(action)
+                    if not 0 <= value < spec.size:
+                        raise ValueError(f"action {value} is out of range: valid actions are 0..{spec.size - 1}")
+                return jnp.clip(action, 0, spec.size - 1).astype(jnp.int32)
+            if action.shape != (spec.size,):
+                raise ValueError(
+                    f"a discrete action is a scalar int in [0, {spec.size}) or a float vector of {spec.size} scores; "
+                    f"got dtype {action.dtype} shape {action.shape}"
+                )
+            return jnp.argmax(action).astype(jnp.int32)
+        if action.shape != (spec.size,):
+            raise ValueError(f"a continuous action has shape ({spec.size},), got {action.shape}")
+        if not jnp.issubdtype(action.dtype, jnp.floating):
+            raise TypeError(f"a continuous action is a float vector, got dtype {action.dtype}")
+        if not isinstance(action, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(action))):
+            raise ValueError(f"action contains NaN or inf: {np.asarray(action)}")
+        return jnp.clip(action.astype(jnp.float32), spec.low, spec.high)

@@ -1,0 +1,1 @@
+"""CLEVR-Robot (placeholder until the env lands)."""

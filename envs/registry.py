@@ -1,0 +1,50 @@
+"""The one registry of environments: names -> (env class, config overrides)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from envs.base import Env, EnvConfig, replace_config
+from envs.physics import PHYSICS_BACKENDS
+
+_REGISTRY: dict[str, tuple[type[Env], dict[str, Any]]] = {}
+
+
+def register_environment(name: str, env_class: type[Env], **config_overrides: Any) -> None:
+    """Registers ``env_class`` under ``name``; ``config_overrides`` are applied to its default config."""
+    if name in _REGISTRY:
+        raise ValueError(f"environment {name!r} is already registered")
+    replace_config(env_class.config_class(), config_overrides)  # fail early on bad overrides
+    _REGISTRY[name] = (env_class, dict(config_overrides))
+
+
+def registered_names() -> tuple[str, ...]:
+    return tuple(sorted(_REGISTRY))
+
+
+def _lookup(name: str) -> tuple[type[Env], dict[str, Any]]:
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown environment {name!r}; registered environments: {', '.join(registered_names())}")
+    return _REGISTRY[name]
+
+
+def get_default_config(name: str) -> EnvConfig:
+    """The resolved default config of a registered env (a frozen dataclass)."""
+    env_class, overrides = _lookup(name)
+    return replace_config(env_class.config_class(), overrides)
+
+
+def make(name: str, *, physics: str = "mjx", **overrides: Any) -> Env:
+    """Builds a registered env.
+
+    Args:
+        name: one of ``envs.ALL_ENVS``.
+        physics: ``"mjx"`` (pure JAX, default; what runs on GPU/TPU) or ``"c"`` (MuJoCo's C engine through a
+            batched callback; the fast choice on a CPU).
+        **overrides: fields of the env's config (see ``get_default_config(name)``).
+    """
+    env_class, _ = _lookup(name)
+    if physics not in PHYSICS_BACKENDS:
+        raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(PHYSICS_BACKENDS)}")
+    config = replace_config(get_default_config(name), overrides)
+    return env_class(config, physics=physics)
