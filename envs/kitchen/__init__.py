@@ -1,0 +1,1 @@
+"""FrankaKitchen (placeholder until the env lands)."""
