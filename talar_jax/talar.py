@@ -1,0 +1,241 @@
+"""TALAR's two supervised stages (Algorithms 1 and 2), jitted and vmapped over seeds.
+
+1. ``train_task_language``: the TL generator and the receiver play the referential game (Eq. 2) on the task
+   dataset, reading precomputed BERT prefix embeddings from the language cache (BERT is never called).
+2. ``train_translator``: the translator learns to reproduce the frozen generator's TL from the sentence
+   embedding of the tuple's instruction (Eq. 3).
+``translate_instructions`` then turns every instruction of the cache into its TL: the lookup table the
+instruction-following policy is conditioned on (Algorithm 3, via PPO's table conditioner).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from talar_jax.task_language import (
+    Receiver,
+    TaskLanguageGenerator,
+    TaskLanguageSpec,
+    Translator,
+    decode_translation,
+    referential_game_loss,
+    translator_loss,
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class TalarConfig:
+    """Hyper-parameters of the referential game and the translator (defaults: the paper's Table 2)."""
+
+    spec: TaskLanguageSpec = TaskLanguageSpec()
+    """Task-language shape: N_pn = 4 predicates, N_a = 2 arguments of size 5."""
+    generator_hidden: tuple[int, ...] = (128, 128)
+    """Hidden layers of each argument and predicate network (Table 2: [128, 128, out], relu)."""
+    receiver_hidden: tuple[int, ...] = (256,)
+    """Hidden layers of the receiver on [L_T, BERT prefix embedding] (the paper: a fully-connected layer)."""
+    translator_hidden: tuple[int, ...] = (256, 256, 256, 256)
+    """Translator MLP (Table 2: [256, 256, 256, 256, |L_T|], relu)."""
+    gumbel_temperature: float = 1.0
+    """Temperature of the straight-through Gumbel-softmax."""
+    rg_learning_rate: float = 3e-4
+    """LR for L_RG (Table 2)."""
+    translator_learning_rate: float = 3e-4
+    """LR for L_T (Table 2)."""
+    batch_size: int = 256
+    """Tuples per gradient step in both stages."""
+    rg_steps: int = 20_000
+    """Gradient steps of the referential game."""
+    translator_steps: int = 10_000
+    """Gradient steps of the translator."""
+
+    def __post_init__(self):
+        for name in ("batch_size", "rg_steps", "translator_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+
+class TaskLanguageData(NamedTuple):
+    """Device arrays of the task dataset joined with the language cache (shared by all seeds).
+
+    Attributes:
+        states: (N, obs) s_i.
+        final_states: (N, obs) s_T of the same episode.
+        sentence_ids: (N,) row of the instruction L_N in the cache.
+        sentence_embeddings: (S, D) pooled BERT embedding of every cached sentence.
+        prefix_embeddings: (P, D) BERT embedding of every prefix T_1..T_{i-1}.
+        prefix_next_token: (P,) index of T_i in the task vocabulary.
+        sentence_prefix_start: (S,) first prefix row of each sentence.
+        sentence_prefix_count: (S,) number of prefixes (tokens) of each sentence.
+    """
+
+    states: jax.Array
+    final_states: jax.Array
+    sentence_ids: jax.Array
+    sentence_embeddings: jax.Array
+    prefix_embeddings: jax.Array
+    prefix_next_token: jax.Array
+    sentence_prefix_start: jax.Array
+    sentence_prefix_count: jax.Array
+
+
+def make_task_language_data(dataset: Any, cache: Any) -> TaskLanguageData:
+    """Joins a ``TaskDataset`` (states, final_states, instruction_ids) with an ``EmbeddingCache``."""
+    sentence_ids = np.asarray(dataset.instruction_ids, np.int32)
+    if sentence_ids.size == 0:
+        raise ValueError("the task dataset is empty")
+    if sentence_ids.min() < 0 or sentence_ids.max() >= len(cache.sentences):
+        raise ValueError(
+            f"task dataset instruction ids span [{sentence_ids.min()}, {sentence_ids.max()}] but the language cache "
+            f"has {len(cache.sentences)} sentences: dataset and cache come from different instruction sets"
+        )
+    return TaskLanguageData(
+        states=jnp.asarray(dataset.states, jnp.float32),
+        final_states=jnp.asarray(dataset.final_states, jnp.float32),
+        sentence_ids=jnp.asarray(sentence_ids),
+        sentence_embeddings=jnp.asarray(cache.sentence_embeddings, jnp.float32),
+        prefix_embeddings=jnp.asarray(cache.prefix_embeddings, jnp.float32),
+        prefix_next_token=jnp.asarray(cache.prefix_next_token_compact, jnp.int32),
+        sentence_prefix_start=jnp.asarray(cache.sentence_prefix_start, jnp.int32),
+        sentence_prefix_count=jnp.asarray(cache.sentence_prefix_count, jnp.int32),
+    )
+
+
+def _networks(config: TalarConfig, vocab_size: int) -> tuple[TaskLanguageGenerator, Receiver, Translator]:
+    generator = TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
+    return generator, Receiver(vocab_size, config.receiver_hidden), Translator(config.spec, config.translator_hidden)
+
+
+def make_train_task_language(config: TalarConfig, vocab_size: int):
+    """Returns ``train(rng, data) -> (params, losses)`` for the referential game (vmap it over seeds).
+
+    ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step.
+    """
+    generator, receiver, _ = _networks(config, vocab_size)
+    optimizer = optax.adam(config.rg_learning_rate)
+
+    def loss_fn(params, rng, data: TaskLanguageData):
+        rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
+        rows = jax.random.randint(rng_batch, (config.batch_size,), 0, data.states.shape[0])
+        sentences = data.sentence_ids[rows]
+        # T_i is drawn uniformly from the tokens of the instruction (paper: "randomly sampled").
+        offset = jax.random.randint(rng_prefix, rows.shape, 0, data.sentence_prefix_count[sentences])
+        prefix = data.sentence_prefix_start[sentences] + offset
+        task_language = generator.apply(params["generator"], data.states[rows], data.final_states[rows], rng_gumbel)
+        logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
+        return referential_game_loss(logits, data.prefix_next_token[prefix])
+
+    def train(rng: jax.Array, data: TaskLanguageData):
+        rng_generator, rng_receiver, rng_steps = jax.random.split(rng, 3)
+        obs = data.states[:1]
+        params = {
+            "generator": generator.init(rng_generator, obs, obs, None),
+            "receiver": receiver.init(
+                rng_receiver, jnp.zeros((1, config.spec.size)), data.prefix_embeddings[:1]
+            ),
+        }
+
+        def update(carry, rng_step):
+            params, opt_state = carry
+            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step, data)
+            updates, opt_state = optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), loss
+
+        (params, _), losses = jax.lax.scan(
+            update, (params, optimizer.init(params)), jax.random.split(rng_steps, config.rg_steps)
+        )
+        return params, losses
+
+    return train
+
+
+def make_generate_task_language(config: TalarConfig):
+    """Returns ``generate(generator_params, states, final_states) -> (N, |L_T|)``, deterministic (no noise)."""
+    generator = _networks(config, 1)[0]
+
+    def generate(generator_params, states: jax.Array, final_states: jax.Array) -> jax.Array:
+        return generator.apply(generator_params, states, final_states, None)
+
+    return generate
+
+
+def make_train_translator(config: TalarConfig):
+    """Returns ``train(rng, generator_params, data) -> (translator_params, losses)`` (vmap it over seeds).
+
+    The generator is frozen: its deterministic TL of each tuple is the target (Algorithm 2).
+    """
+    _, _, translator = _networks(config, 1)
+    generate = make_generate_task_language(config)
+    optimizer = optax.adam(config.translator_learning_rate)
+
+    def train(rng: jax.Array, generator_params, data: TaskLanguageData):
+        targets = jax.lax.stop_gradient(generate(generator_params, data.states, data.final_states))
+        rng_init, rng_steps = jax.random.split(rng)
+        params = translator.init(rng_init, data.sentence_embeddings[:1])
+
+        def loss_fn(params, rng_step):
+            rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
+            logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
+            return translator_loss(config.spec, logits, targets[rows])
+
+        def update(carry, rng_step):
+            params, opt_state = carry
+            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step)
+            updates, opt_state = optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), loss
+
+        (params, _), losses = jax.lax.scan(
+            update, (params, optimizer.init(params)), jax.random.split(rng_steps, config.translator_steps)
+        )
+        return params, losses
+
+    return train
+
+
+def make_translate(config: TalarConfig):
+    """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L_T|)`` hard task language."""
+    _, _, translator = _networks(config, 1)
+
+    def translate(translator_params, sentence_embeddings: jax.Array) -> jax.Array:
+        return decode_translation(config.spec, translator.apply(translator_params, sentence_embeddings))
+
+    return translate
+
+
+def task_language_quality(table: np.ndarray, goal_ids: np.ndarray, is_train: np.ndarray) -> dict[str, float]:
+    """How well translated TL identifies goals.
+
+    Args:
+        table: (S, |L_T|) translated TL of every instruction.
+        goal_ids: (S,) goal of each instruction.
+        is_train: (S,) True for training instructions.
+
+    Returns:
+        ``test_matches_train``: fraction of test instructions whose TL equals the most common TL of the
+        training instructions of the same goal; ``train_consistency``: fraction of training instructions
+        equal to their goal's most common TL; ``distinct_goal_codes``: fraction of goals whose most common
+        training TL no other goal shares.
+    """
+    table = np.asarray(table).round().astype(np.int8)
+    goal_ids, is_train = np.asarray(goal_ids), np.asarray(is_train, bool)
+    codes = {}
+    for goal in np.unique(goal_ids[is_train]):
+        rows, counts = np.unique(table[is_train & (goal_ids == goal)], axis=0, return_counts=True)
+        codes[int(goal)] = rows[np.argmax(counts)]
+
+    def matches(mask):
+        hits = [np.array_equal(table[i], codes.get(int(goal_ids[i]))) for i in np.flatnonzero(mask)]
+        return float(np.mean(hits)) if hits else float("nan")
+
+    code_list = [tuple(c) for c in codes.values()]
+    distinct = np.mean([code_list.count(c) == 1 for c in code_list]) if code_list else float("nan")
+    return {
+        "test_matches_train": matches(~is_train),
+        "train_consistency": matches(is_train),
+        "distinct_goal_codes": float(distinct),
+    }

@@ -1,0 +1,180 @@
+"""TALAR's task language: the TL generator g(s, s'), the referential-game receiver and the translator.
+
+Paper section 4.2 and Table 2. The task language L_T of a state pair is the concatenation
+``(pred_1, ..., pred_Npn, arg_1, ..., arg_Na)``: ``N_pn`` predicate values in {0, 1} followed by ``N_a``
+one-hot arguments of ``arg_size`` entries, so ``|L_T| = N_pn + N_a * arg_size`` (4 + 2 * 5 = 14 by default).
+Discreteness comes from straight-through Gumbel-softmax, so the generator is trained end to end by the
+receiver's next-token loss (Eq. 2); the translator is trained by Eq. 3 to reproduce the frozen generator's
+TL from a sentence embedding.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskLanguageSpec:
+    """Shape of the task language."""
+
+    num_predicates: int = 4
+    """N_pn: number of predicate networks (each outputs one Boolean)."""
+    num_arguments: int = 2
+    """N_a: number of argument networks (each outputs a one-hot)."""
+    arg_size: int = 5
+    """Size of each argument network's one-hot output."""
+
+    def __post_init__(self):
+        for name in ("num_predicates", "num_arguments", "arg_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TaskLanguageSpec.{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def size(self) -> int:
+        """|L_T|."""
+        return self.num_predicates + self.num_arguments * self.arg_size
+
+
+def gumbel_softmax(logits: jax.Array, rng: jax.Array | None, temperature: float = 1.0) -> jax.Array:
+    """Straight-through Gumbel-softmax: a hard one-hot forward, the soft sample's gradient backward.
+
+    With ``rng=None`` no noise is added (the deterministic argmax, used for targets and evaluation).
+
+    Args:
+        logits: (..., k).
+        rng: PRNG key or None.
+        temperature: softmax temperature of the relaxed sample.
+
+    Returns:
+        (..., k) one-hot in value, differentiable through the relaxed sample.
+    """
+    if rng is not None:
+        logits = logits + jax.random.gumbel(rng, logits.shape, logits.dtype)
+    soft = jax.nn.softmax(logits / temperature, axis=-1)
+    hard = jax.nn.one_hot(jnp.argmax(soft, axis=-1), logits.shape[-1], dtype=soft.dtype)
+    return hard + (soft - jax.lax.stop_gradient(soft))  # exactly one-hot forward
+
+
+class _MLP(nn.Module):
+    """Dense layers with an activation between them (none after the last)."""
+
+    layer_sizes: Sequence[int]
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for i, size in enumerate(self.layer_sizes):
+            x = nn.Dense(size, name=f"dense_{i}")(x)
+            if i < len(self.layer_sizes) - 1:
+                x = nn.relu(x)
+        return x
+
+
+class TaskLanguageGenerator(nn.Module):
+    """g(s, s') -> L_T: N_a argument networks then N_pn predicate networks (Fig. 2b)."""
+
+    spec: TaskLanguageSpec = TaskLanguageSpec()
+    hidden_sizes: Sequence[int] = (128, 128)
+    temperature: float = 1.0
+
+    @nn.compact
+    def __call__(self, state: jax.Array, next_state: jax.Array, rng: jax.Array | None = None) -> jax.Array:
+        """Args: state, next_state (..., obs); rng: Gumbel noise key, None for the deterministic TL.
+
+        Returns: L_T (..., spec.size) with values in {0, 1}.
+        """
+        pair = jnp.concatenate([state, next_state], axis=-1)
+        spec = self.spec
+        keys = (
+            list(jax.random.split(rng, spec.num_arguments + spec.num_predicates))
+            if rng is not None
+            else [None] * (spec.num_arguments + spec.num_predicates)
+        )
+        arguments = [
+            gumbel_softmax(
+                _MLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(pair), keys[i], self.temperature
+            )
+            for i in range(spec.num_arguments)
+        ]
+        predicate_input = jnp.concatenate([pair, *arguments], axis=-1)
+        predicates = [
+            gumbel_softmax(
+                _MLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input),
+                keys[spec.num_arguments + j],
+                self.temperature,
+            )[..., 1:]
+            for j in range(spec.num_predicates)
+        ]
+        return jnp.concatenate([*predicates, *arguments], axis=-1)
+
+
+class Receiver(nn.Module):
+    """f(T_i | L_T, b(T_1..T_{i-1})): logits over the task vocabulary (the referential game's listener)."""
+
+    vocab_size: int
+    hidden_sizes: Sequence[int] = (256,)
+
+    @nn.compact
+    def __call__(self, task_language: jax.Array, prefix_embedding: jax.Array) -> jax.Array:
+        """Args: task_language (..., |L_T|); prefix_embedding (..., D). Returns logits (..., vocab_size)."""
+        return _MLP((*self.hidden_sizes, self.vocab_size))(jnp.concatenate([task_language, prefix_embedding], -1))
+
+
+class Translator(nn.Module):
+    """p_phi: sentence embedding -> logits of L_T (predicate logits, then argument logits); Fig. 2c."""
+
+    spec: TaskLanguageSpec = TaskLanguageSpec()
+    hidden_sizes: Sequence[int] = (256, 256, 256, 256)
+
+    @nn.compact
+    def __call__(self, sentence_embedding: jax.Array) -> jax.Array:
+        """Args: sentence_embedding (..., D). Returns logits (..., spec.size) (see ``translator_loss``)."""
+        return _MLP((*self.hidden_sizes, self.spec.size))(sentence_embedding)
+
+
+def split_task_language(spec: TaskLanguageSpec, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Splits (..., |L_T|) into predicates (..., N_pn) and arguments (..., N_a, arg_size)."""
+    predicates = x[..., : spec.num_predicates]
+    arguments = x[..., spec.num_predicates :].reshape(*x.shape[:-1], spec.num_arguments, spec.arg_size)
+    return predicates, arguments
+
+
+def decode_translation(spec: TaskLanguageSpec, logits: jax.Array) -> jax.Array:
+    """Translator logits -> hard task language (predicate = logit > 0, argument = one-hot of the argmax)."""
+    predicate_logits, argument_logits = split_task_language(spec, logits)
+    predicates = (predicate_logits > 0).astype(jnp.float32)
+    arguments = jax.nn.one_hot(jnp.argmax(argument_logits, -1), spec.arg_size, dtype=jnp.float32)
+    return jnp.concatenate([predicates, arguments.reshape(*arguments.shape[:-2], -1)], axis=-1)
+
+
+def referential_game_loss(receiver_logits: jax.Array, next_tokens: jax.Array) -> jax.Array:
+    """Eq. 2: mean negative log-likelihood of the next token.
+
+    Args:
+        receiver_logits: (B, V) logits over the task vocabulary.
+        next_tokens: (B,) int indices into that vocabulary.
+    """
+    return optax.softmax_cross_entropy_with_integer_labels(receiver_logits, next_tokens).mean()
+
+
+def translator_loss(spec: TaskLanguageSpec, logits: jax.Array, target: jax.Array) -> jax.Array:
+    """Eq. 3: -log p_phi(L_T | b(L_N)), with independent Bernoulli predicates and categorical arguments.
+
+    Args:
+        spec: task-language shape.
+        logits: (B, |L_T|) translator outputs.
+        target: (B, |L_T|) the generator's hard task language.
+
+    Returns:
+        Scalar mean over the batch of the summed per-component negative log-likelihoods.
+    """
+    predicate_logits, argument_logits = split_task_language(spec, logits)
+    predicate_target, argument_target = split_task_language(spec, target)
+    predicate_nll = optax.sigmoid_binary_cross_entropy(predicate_logits, predicate_target).sum(-1)
+    argument_nll = optax.softmax_cross_entropy(argument_logits, argument_target).sum(-1)
+    return (predicate_nll + argument_nll).mean()

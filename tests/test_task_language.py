@@ -1,0 +1,113 @@
+"""TALAR's task language: Gumbel-softmax, generator/translator shapes and losses, and learning on a toy task."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from talar_jax.talar import (
+    TalarConfig,
+    TaskLanguageData,
+    make_generate_task_language,
+    make_train_task_language,
+    make_train_translator,
+    make_translate,
+    task_language_quality,
+)
+from talar_jax.task_language import (
+    TaskLanguageGenerator,
+    TaskLanguageSpec,
+    decode_translation,
+    gumbel_softmax,
+    translator_loss,
+)
+
+
+def test_gumbel_softmax_is_one_hot_with_soft_gradient():
+    logits = jnp.array([[0.1, 2.0, -1.0], [3.0, 0.0, 0.0]])
+    hard = gumbel_softmax(logits, None)
+    np.testing.assert_array_equal(hard, [[0, 1, 0], [1, 0, 0]])
+    grad = jax.grad(lambda x: (gumbel_softmax(x, None) * jnp.array([1.0, 2.0, 3.0])).sum())(logits)
+    assert np.abs(np.asarray(grad)).sum() > 0  # straight-through: gradient of the soft sample
+    samples = jax.vmap(lambda k: gumbel_softmax(jnp.zeros(4), k))(jax.random.split(jax.random.key(0), 4000))
+    np.testing.assert_allclose(samples.mean(0), 0.25, atol=0.03)  # uniform logits -> uniform choices
+
+
+def test_generator_output_layout():
+    spec = TaskLanguageSpec(num_predicates=3, num_arguments=2, arg_size=4)
+    generator = TaskLanguageGenerator(spec)
+    s = jnp.ones((7, 10))
+    params = generator.init(jax.random.key(0), s, s, None)
+    out = generator.apply(params, s, s * 2, jax.random.key(1))
+    assert out.shape == (7, spec.size) == (7, 3 + 2 * 4)
+    assert set(np.unique(np.asarray(out)).tolist()) <= {0.0, 1.0}
+    np.testing.assert_array_equal(out[:, 3:].reshape(7, 2, 4).sum(-1), 1.0)  # each argument is one-hot
+
+
+def test_translator_loss_hand_values_and_decoding():
+    spec = TaskLanguageSpec(num_predicates=1, num_arguments=1, arg_size=2)
+    logits = jnp.array([[0.0, 0.0, 0.0]])
+    target = jnp.array([[1.0, 0.0, 1.0]])
+    # predicate: -log sigmoid(0) = log 2; argument: -log softmax([0, 0])[1] = log 2
+    np.testing.assert_allclose(translator_loss(spec, logits, target), 2 * np.log(2), rtol=1e-6)
+    np.testing.assert_array_equal(decode_translation(spec, jnp.array([[2.0, -1.0, 3.0]])), [[1.0, 0.0, 1.0]])
+    with pytest.raises(ValueError, match="num_predicates"):
+        TaskLanguageSpec(num_predicates=0)
+
+
+def _toy_data(num_goals=4, per_goal=6, tuples=2048, dim=8, seed=0):
+    """Goal g moves the state by a goal-specific offset; its sentences embed near a goal vector and their
+    tokens are (goal word, shared word)."""
+    rng = np.random.default_rng(seed)
+    offsets = rng.normal(size=(num_goals, 6)) * 2
+    goal_vectors = rng.normal(size=(num_goals, dim))
+    sentence_goal = np.repeat(np.arange(num_goals), per_goal)
+    sentence_embeddings = goal_vectors[sentence_goal] + 0.3 * rng.normal(size=(len(sentence_goal), dim))
+    is_train = np.tile(np.arange(per_goal) < per_goal // 2, num_goals)
+    # 2 prefixes per sentence: empty -> goal word (token g), goal word -> shared word (token num_goals)
+    prefix_embeddings = np.concatenate([np.zeros((1, dim)), goal_vectors])  # 0: empty, 1+g: after goal word
+    prefix_rows = np.stack([np.zeros(num_goals, int), 1 + np.arange(num_goals)], 1)  # (goals, 2)
+    prefix_table = np.zeros((len(sentence_goal) * 2, dim))
+    next_token = np.zeros(len(sentence_goal) * 2, np.int32)
+    for s, g in enumerate(sentence_goal):
+        prefix_table[2 * s : 2 * s + 2] = prefix_embeddings[prefix_rows[g]]
+        next_token[2 * s : 2 * s + 2] = (g, num_goals)
+    train_sentences = np.flatnonzero(is_train)
+    ids = rng.choice(train_sentences, tuples)
+    states = rng.normal(size=(tuples, 6))
+    data = TaskLanguageData(
+        states=jnp.asarray(states, jnp.float32),
+        final_states=jnp.asarray(states + offsets[sentence_goal[ids]], jnp.float32),
+        sentence_ids=jnp.asarray(ids, jnp.int32),
+        sentence_embeddings=jnp.asarray(sentence_embeddings, jnp.float32),
+        prefix_embeddings=jnp.asarray(prefix_table, jnp.float32),
+        prefix_next_token=jnp.asarray(next_token),
+        sentence_prefix_start=jnp.asarray(2 * np.arange(len(sentence_goal)), jnp.int32),
+        sentence_prefix_count=jnp.full(len(sentence_goal), 2, jnp.int32),
+    )
+    return data, sentence_goal, is_train, num_goals + 1
+
+
+def test_talar_learns_a_task_language_that_separates_goals_on_a_toy_task():
+    data, sentence_goal, is_train, vocab = _toy_data()
+    config = TalarConfig(rg_steps=1500, translator_steps=800, batch_size=128)
+    seeds = jax.random.split(jax.random.key(0), 2)
+    params, rg_losses = jax.jit(jax.vmap(make_train_task_language(config, vocab), in_axes=(0, None)))(seeds, data)
+    assert rg_losses.shape == (2, config.rg_steps)
+    # Predicting the goal word needs the TL: chance is log(4) for that half of the tokens.
+    final = np.asarray(rg_losses[:, -200:].mean(1))
+    assert np.all(final < 0.25), final
+    assert np.all(final < np.asarray(rg_losses[:, :50].mean(1)))
+    translator_params, tr_losses = jax.jit(jax.vmap(make_train_translator(config), in_axes=(0, 0, None)))(
+        seeds, params["generator"], data
+    )
+    table = jax.vmap(make_translate(config), in_axes=(0, None))(translator_params, data.sentence_embeddings)
+    for seed in range(2):
+        quality = task_language_quality(np.asarray(table[seed]), sentence_goal, is_train)
+        assert quality["distinct_goal_codes"] == 1.0, quality
+        assert quality["train_consistency"] == 1.0, quality
+        assert quality["test_matches_train"] >= 0.9, quality
+    generated = make_generate_task_language(config)(
+        jax.tree.map(lambda x: x[0], params["generator"]), data.states[:4], data.final_states[:4]
+    )
+    assert generated.shape == (4, config.spec.size)
