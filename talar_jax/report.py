@@ -1,0 +1,104 @@
+"""Figures and tables of a run: learning curves like the paper's Fig. 4, t-SNE like Fig. 5a, a results table."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LearningCurve:
+    """Success rate over env steps for one method, all seeds.
+
+    Attributes:
+        env_steps: (T,) env steps at each evaluation.
+        success: split name ("train", "test") -> (num_seeds, T) success rates in [0, 1].
+    """
+
+    env_steps: np.ndarray
+    success: Mapping[str, np.ndarray]
+
+
+def plot_learning_curves(curves: Mapping[str, LearningCurve], path: str | Path, title: str = "") -> Path:
+    """One panel per instruction split; mean +- std over seeds per method (Fig. 4 style). Writes a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    splits = sorted({split for curve in curves.values() for split in curve.success}, key=["train", "test"].index)
+    fig, axes = plt.subplots(1, len(splits), figsize=(5 * len(splits), 3.6), squeeze=False)
+    for ax, split in zip(axes[0], splits, strict=True):
+        for method, curve in curves.items():
+            if split not in curve.success:
+                continue
+            rates = np.asarray(curve.success[split], float) * 100
+            mean, std = rates.mean(0), rates.std(0)
+            (line,) = ax.plot(curve.env_steps, mean, label=method)
+            ax.fill_between(curve.env_steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+        ax.set_title(f"{title} ({split} instructions)".strip())
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("success rate (%)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_tsne(
+    vectors: np.ndarray, labels: np.ndarray, path: str | Path, title: str = "", label_names: Sequence[str] | None = None
+) -> Path:
+    """t-SNE projection of instruction encodings, one marker/colour per goal (Fig. 5 style). Writes a PNG.
+
+    A small jitter separates identical points (the paper does the same), so identical TL stays visible.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from sklearn.manifold import TSNE
+
+    vectors = np.asarray(vectors, np.float32)
+    labels = np.asarray(labels)
+    perplexity = float(min(30.0, max(2.0, (len(vectors) - 1) / 3)))
+    points = TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=0).fit_transform(vectors)
+    points = points + np.random.default_rng(0).normal(scale=0.01 * points.std(), size=points.shape)
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    markers = "o^sDvP*Xh<>p"
+    cmap = plt.get_cmap("tab20")
+    for i, label in enumerate(np.unique(labels)):
+        mask = labels == label
+        name = label_names[int(label)] if label_names is not None else str(label)
+        ax.scatter(*points[mask].T, s=14, marker=markers[i % len(markers)], color=cmap(i % 20), label=name)
+    if len(np.unique(labels)) <= 12:
+        ax.legend(fontsize=7, loc="best")
+    ax.set_title(title)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def results_table(final: Mapping[str, Mapping[str, np.ndarray]], title: str = "") -> str:
+    """Markdown table of final success rates: method -> split -> (num_seeds,) rates in [0, 1]."""
+    splits = sorted({s for per_split in final.values() for s in per_split}, key=["train", "test"].index)
+    lines = [f"### {title}", ""] if title else []
+    lines += ["| method | " + " | ".join(f"{s} instructions (%)" for s in splits) + " |"]
+    lines += ["|---|" + "---|" * len(splits)]
+    for method, per_split in final.items():
+        cells = []
+        for split in splits:
+            rates = np.asarray(per_split.get(split, []), float) * 100
+            cells.append(f"{rates.mean():.1f} ± {rates.std():.1f} (n={rates.size})" if rates.size else "-")
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
