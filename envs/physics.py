@@ -109,7 +109,11 @@ class CPhysics(Physics):
     def __init__(self, mj_model: mujoco.MjModel, nthread: int | None = None):
         super().__init__(mj_model)
         self.nthread = max(1, nthread if nthread is not None else (os.cpu_count() or 1))
-        self._local = threading.local()
+        # One MjData cache per backend, guarded by a lock. Not ``threading.local``: XLA runs callbacks on
+        # foreign threads whose Python thread state (and its locals, hence MjData) is torn down after each
+        # callback, which segfaulted (seen with the kitchen model).
+        self._lock = threading.Lock()
+        self._cached_datas: list[mujoco.MjData] = []
         m = mj_model
         full = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self._state_size = mujoco.mj_stateSize(m, full)
@@ -124,11 +128,9 @@ class CPhysics(Physics):
         mujoco.mj_getState(m, template, self._template_state, full)
 
     def _datas(self, count: int) -> list[mujoco.MjData]:
-        datas = getattr(self._local, "datas", None)
-        if datas is None or len(datas) < count:
-            datas = [mujoco.MjData(self.mj_model) for _ in range(count)]
-            self._local.datas = datas
-        return datas[:count]
+        while len(self._cached_datas) < count:
+            self._cached_datas.append(mujoco.MjData(self.mj_model))
+        return self._cached_datas[:count]
 
     def host_step(self, qpos: np.ndarray, qvel: np.ndarray, time: np.ndarray, ctrl: np.ndarray, nsubsteps: int):
         """Numpy batched step: arrays with any leading batch shape, returns (qpos, qvel, time) in float32."""
@@ -141,14 +143,15 @@ class CPhysics(Physics):
         state0[:, self._qvel_at : self._qvel_at + m.nv] = qvel.reshape(n, m.nv)
         control = np.broadcast_to(ctrl.reshape(n, 1, m.nu).astype(np.float64), (n, nsubsteps, m.nu))
         nthread = min(self.nthread, n)
-        datas = self._datas(nthread)
-        states, _ = mj_rollout.rollout(
-            [m] * n if nthread > 1 else m,
-            datas if nthread > 1 else datas[0],
-            state0,
-            np.ascontiguousarray(control),
-            nstep=nsubsteps,
-        )
+        with self._lock:
+            datas = self._datas(nthread)
+            states, _ = mj_rollout.rollout(
+                [m] * n if nthread > 1 else m,
+                datas if nthread > 1 else datas[0],
+                state0,
+                np.ascontiguousarray(control),
+                nstep=nsubsteps,
+            )
         last = states[:, -1]
         out_qpos = last[:, self._qpos_at : self._qpos_at + m.nq].reshape(batch_shape + (m.nq,))
         out_qvel = last[:, self._qvel_at : self._qvel_at + m.nv].reshape(batch_shape + (m.nv,))
