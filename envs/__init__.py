@@ -18,6 +18,7 @@ from envs.wrappers import (
 
 # Env packages register themselves on import.
 from envs import clevr as _clevr  # noqa: E402,F401  isort: skip
+from envs import kitchen as _kitchen  # noqa: E402,F401  isort: skip
 
 ALL_ENVS: tuple[str, ...] = registered_names()
 

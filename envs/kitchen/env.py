@@ -1,0 +1,230 @@
+"""FrankaKitchen env in TALAR's protocol (one sub-task per episode, or all six at once) on MJX or MuJoCo C."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.kitchen import tasks
+
+INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
+
+# Clip bounds of the servo targets (the original robot config's ``pos_bound``; note joint 6's [0, 3.8]).
+POS_LOW = np.array([-2.9, -1.8, -2.9, -3.1, -2.9, 0.0, -2.9, 0.0, 0.0], np.float32)
+POS_HIGH = np.array([2.9, 1.8, 2.9, 0.0, 2.9, 3.8, 2.9, 0.04, 0.04], np.float32)
+ACTION_SCALE = 2.0  # action in [-1, 1] -> joint velocity in [-2, 2] rad/s (m/s for the fingers)
+
+# Simulated joints -> their index in the 30-D observation. Indicator dofs (burners 10/12/14/16, lamp 18) are
+# derived from the knob / switch angles through the original couplings; hinge doors (20, 21) are static.
+_OBS_INDEX_OF_JOINT = {
+    **{f"panda0_joint{i + 1}": i for i in range(7)},
+    "panda0_finger_joint1": 7,
+    "panda0_finger_joint2": 8,
+    "knob_Joint_1": 9,
+    "knob_Joint_2": 11,
+    "knob_Joint_3": 13,
+    "knob_Joint_4": 15,
+    "light_switch": 17,
+    "slide_cabinet": 19,
+    "microwave": 22,
+    "kettle": 23,  # free joint: 7 entries
+}
+_BURNER_OF_KNOB = {9: 10, 11: 12, 13: 14, 15: 16}
+KNOB_PER_BURNER = 174.0  # knob angle = 174 x burner slide, burner range [-0.009, 0]
+SWITCH_PER_LAMP = 14.0  # switch angle = 14 x lamp slide, lamp range [-0.05, 0]
+
+
+@dataclasses.dataclass(frozen=True)
+class KitchenConfig(EnvConfig):
+    """FrankaKitchen options (defaults: TALAR's protocol with the lean MJX physics settings)."""
+
+    episode_length: int = 280
+    """Steps per episode (TALAR, D4RL): 280 x 0.08 s."""
+    noise_ratio: float = 0.1
+    """Uniform observation noise ratio (D4RL / TALAR 0.1; 0 disables noise)."""
+    timestep: float = 0.01
+    """Physics timestep in seconds (original: 0.002)."""
+    substeps: int = 8
+    """Physics steps per env step (original: 40); timestep x substeps is the control period."""
+    integrator: str = "implicitfast"
+    """Integrator: 'implicitfast' (lean) or 'euler' (original)."""
+    solver_iterations: int = 5
+    """Newton solver iterations (original: 100)."""
+    ls_iterations: int = 8
+    """Solver line-search iterations (original: 50)."""
+    all_tasks: bool = False
+    """False: one sub-task per episode (``kitchen``). True: all six at once (``kitchen-all``)."""
+
+
+@struct.dataclass
+class KitchenTask:
+    """Per-episode task data and the control law's memory."""
+
+    goal: jax.Array  # () int32 sub-task id (index in tasks.TASK_NAMES); -1 in kitchen-all
+    completed: jax.Array  # (6,) float32, sub-tasks completed so far this episode
+    distance: jax.Array  # (6,) float32, each sub-task's distance to its goal at the last observation
+    robot_qpos_obs: jax.Array  # (9,) float32, last noisy robot joint observation (q_obs_prev of the control law)
+    noise_rng: jax.Array  # (2,) uint32 raw PRNG key for the observation noise
+
+
+def _raw_key(rng: jax.Array) -> jax.Array:
+    return jax.random.key_data(rng) if jnp.issubdtype(rng.dtype, jax.dtypes.prng_key) else rng
+
+
+class KitchenEnv(Env):
+    """9-DoF Franka Panda in a kitchen with six sub-tasks (TALAR, Appendix D.1.1).
+
+    | action index | meaning (each in [-1, 1], scaled x2 to a joint velocity) |
+    |---|---|
+    | 0-6 | arm joints 1-7 |
+    | 7, 8 | fingers (left, right) |
+
+    The servo target is ``clip(q_obs_prev + 2 a dt, pos_bound)`` with ``q_obs_prev`` the last *noisy* robot
+    observation, held for ``substeps`` physics steps (dt = timestep x substeps = 0.08 s).
+
+    | observation index | meaning |
+    |---|---|
+    | 0-8 | robot joint positions (kitchen convention for joints 6, 7) |
+    | 9-16 | (knob, burner indicator) pairs 1-4; indicators = knob / 174 |
+    | 17, 18 | light switch angle, lamp = switch / 14 |
+    | 19 | slide cabinet |
+    | 20, 21 | hinge cabinet doors (static at their reset values) |
+    | 22 | microwave door |
+    | 23-29 | kettle position (x, y, z) and quaternion (w, x, y, z) |
+
+    ``kitchen``: one sub-task per episode (uniform goal id), TALAR's ``prev_curr`` reward with the posture term,
+    terminates on success. ``kitchen-all``: all six; reward = number of sub-tasks newly completed at this step
+    (each pays once), terminates when all six are complete; ``metrics["success"]`` = all six complete.
+    """
+
+    config_class = KitchenConfig
+    xml_path = Path(__file__).parent / "xmls" / "kitchen.xml"
+
+    def __init__(self, config: KitchenConfig | None = None, physics: str = "mjx"):
+        config = config if config is not None else KitchenConfig()
+        if isinstance(config, KitchenConfig):
+            if config.integrator not in INTEGRATORS:
+                raise ValueError(f"unknown integrator {config.integrator!r}; choose one of {', '.join(INTEGRATORS)}")
+            if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
+                raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
+        super().__init__(config, physics)
+        m = self.mj_model
+        qpos_index, obs_index = [], []
+        for name, obs_at in _OBS_INDEX_OF_JOINT.items():
+            joint = m.joint(name)
+            width = 7 if joint.type[0] == mujoco.mjtJoint.mjJNT_FREE else 1
+            qpos_index += list(range(int(joint.qposadr[0]), int(joint.qposadr[0]) + width))
+            obs_index += list(range(obs_at, obs_at + width))
+        if sorted(qpos_index) != list(range(m.nq)):
+            raise RuntimeError("kitchen.xml joints do not match the observation map")
+        self._qpos_index = np.array(qpos_index)
+        self._obs_index = np.array(obs_index)
+        self._knob_obs = np.array(list(_BURNER_OF_KNOB))
+        self._burner_obs = np.array(list(_BURNER_OF_KNOB.values()))
+        self._init_qpos = np.zeros(m.nq, np.float32)
+        self._init_qpos[self._qpos_index] = tasks.INIT_OBS[self._obs_index]
+        self._control_dt = float(self.config.timestep * self.config.substeps)
+
+    def load_model(self) -> mujoco.MjModel:
+        model = super().load_model()
+        model.opt.timestep = self.config.timestep
+        model.opt.integrator = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}[
+            self.config.integrator
+        ]
+        model.opt.iterations = self.config.solver_iterations
+        model.opt.ls_iterations = self.config.ls_iterations
+        return model
+
+    # --- sizes ----------------------------------------------------------------------------------
+    @property
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec("continuous", tasks.NUM_ROBOT_JOINTS, -1.0, 1.0)
+
+    @property
+    def num_goals(self) -> int:
+        return tasks.NUM_TASKS
+
+    @property
+    def observation_size(self) -> int:
+        return tasks.OBSERVATION_SIZE
+
+    @property
+    def init_qpos(self) -> np.ndarray:
+        """(nq,) reset joint positions of the simulated model."""
+        return self._init_qpos.copy()
+
+    # --- observation ----------------------------------------------------------------------------
+    def clean_observation(self, qpos: jax.Array) -> jax.Array:
+        """The noise-free 30-D observation of a (nq,) qpos (indicators derived, hinge doors static)."""
+        obs = jnp.asarray(tasks.INIT_OBS).at[self._obs_index].set(qpos[self._qpos_index])
+        burners = jnp.clip(obs[self._knob_obs] / KNOB_PER_BURNER, -0.009, 0.0)
+        obs = obs.at[self._burner_obs].set(burners)
+        return obs.at[18].set(jnp.clip(obs[17] / SWITCH_PER_LAMP, -0.05, 0.0))
+
+    def _observe(self, qpos: jax.Array, rng: jax.Array) -> jax.Array:
+        noise = jax.random.uniform(rng, (tasks.OBSERVATION_SIZE,), minval=-1.0, maxval=1.0)
+        return self.clean_observation(qpos) + self.config.noise_ratio * tasks.NOISE_AMPLITUDE * noise
+
+    # --- functional API -------------------------------------------------------------------------
+    def reset(self, rng: jax.Array) -> State:
+        rng_goal, rng_obs, noise_rng = jax.random.split(_raw_key(rng), 3)
+        data = self.physics.init(self._init_qpos)
+        obs = self._observe(data.qpos, rng_obs)
+        distance = tasks.task_distances(obs)
+        goal = jnp.int32(-1) if self.config.all_tasks else tasks.sample_goal(rng_goal, distance)
+        task = KitchenTask(
+            goal=goal,
+            completed=jnp.zeros(tasks.NUM_TASKS, jnp.float32),
+            distance=distance,
+            robot_qpos_obs=obs[: tasks.NUM_ROBOT_JOINTS],
+            noise_rng=_raw_key(noise_rng),
+        )
+        zero = jnp.zeros((), jnp.float32)
+        metrics = {"success": zero, "distance": self._goal_distance(task, distance), "num_completed": zero}
+        return State(data=data, obs=obs, reward=zero, done=zero, metrics=metrics, info={}, task=task)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.check_action(action)
+        task: KitchenTask = state.task
+        ctrl = jnp.clip(task.robot_qpos_obs + ACTION_SCALE * action * self._control_dt, POS_LOW, POS_HIGH)
+        data = self.physics.step(state.data, ctrl, self.config.substeps)
+        noise_rng, rng_obs = jax.random.split(task.noise_rng)
+        obs = self._observe(data.qpos, rng_obs)
+        distance = tasks.task_distances(obs)
+        if self.config.all_tasks:
+            completed, reward = tasks.all_tasks_update(task.completed, distance)
+            success = jnp.all(completed > 0.5).astype(jnp.float32)
+        else:
+            terms = tasks.single_task_reward(
+                task.distance[task.goal], distance[task.goal], obs[: tasks.NUM_ROBOT_JOINTS], task.goal
+            )
+            reward = sum(terms.values())
+            success = terms["success"]
+            completed = task.completed.at[task.goal].max(success)
+        new_task = task.replace(
+            completed=completed,
+            distance=distance,
+            robot_qpos_obs=obs[: tasks.NUM_ROBOT_JOINTS],
+            noise_rng=noise_rng,
+        )
+        metrics = {
+            "success": success,
+            "distance": self._goal_distance(new_task, distance),
+            "num_completed": jnp.sum(completed),
+        }
+        return state.replace(
+            data=data, obs=obs, reward=jnp.asarray(reward, jnp.float32), done=success, metrics=metrics, task=new_task
+        )
+
+    def _goal_distance(self, task: KitchenTask, distance: jax.Array) -> jax.Array:
+        """The goal's distance (kitchen) or the summed distance of the sub-tasks not yet completed (kitchen-all)."""
+        if self.config.all_tasks:
+            return jnp.sum(jnp.where(task.completed > 0.5, 0.0, distance))
+        return distance[task.goal]
