@@ -106,9 +106,8 @@ def make_task_language_data(dataset: Any, cache: Any) -> TaskLanguageData:
     )
 
 
-def _networks(config: TalarConfig, vocab_size: int) -> tuple[TaskLanguageGenerator, Receiver, Translator]:
-    generator = TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
-    return generator, Receiver(vocab_size, config.receiver_hidden), Translator(config.spec, config.translator_hidden)
+def _generator(config: TalarConfig) -> TaskLanguageGenerator:
+    return TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
 
 
 def make_train_task_language(config: TalarConfig, vocab_size: int):
@@ -116,7 +115,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
 
     ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step.
     """
-    generator, receiver, _ = _networks(config, vocab_size)
+    generator, receiver = _generator(config), Receiver(vocab_size, config.receiver_hidden)
     optimizer = optax.adam(config.rg_learning_rate)
 
     def loss_fn(params, rng, data: TaskLanguageData):
@@ -156,7 +155,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
 
 def make_generate_task_language(config: TalarConfig):
     """Returns ``generate(generator_params, states, final_states) -> (N, |L_T|)``, deterministic (no noise)."""
-    generator = _networks(config, 1)[0]
+    generator = _generator(config)
 
     def generate(generator_params, states: jax.Array, final_states: jax.Array) -> jax.Array:
         return generator.apply(generator_params, states, final_states, None)
@@ -164,24 +163,26 @@ def make_generate_task_language(config: TalarConfig):
     return generate
 
 
-def make_train_translator(config: TalarConfig):
-    """Returns ``train(rng, generator_params, data) -> (translator_params, losses)`` (vmap it over seeds).
+def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = None):
+    """Returns ``train(rng, targets, data) -> (translator_params, losses)`` (vmap it over seeds).
 
-    The generator is frozen: its deterministic TL of each tuple is the target (Algorithm 2).
+    ``targets`` (N, |L|) is the language each tuple's instruction must translate to: for TALAR the frozen
+    generator's deterministic TL of the tuple (Algorithm 2, see ``make_generate_task_language``); baselines
+    pass other targets (a goal one-hot, a latent-action code) with their own ``spec``.
     """
-    _, _, translator = _networks(config, 1)
-    generate = make_generate_task_language(config)
+    spec = spec if spec is not None else config.spec
+    translator = Translator(spec, config.translator_hidden)
     optimizer = optax.adam(config.translator_learning_rate)
 
-    def train(rng: jax.Array, generator_params, data: TaskLanguageData):
-        targets = jax.lax.stop_gradient(generate(generator_params, data.states, data.final_states))
+    def train(rng: jax.Array, targets: jax.Array, data: TaskLanguageData):
+        targets = jax.lax.stop_gradient(targets)
         rng_init, rng_steps = jax.random.split(rng)
         params = translator.init(rng_init, data.sentence_embeddings[:1])
 
         def loss_fn(params, rng_step):
             rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
             logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
-            return translator_loss(config.spec, logits, targets[rows])
+            return translator_loss(spec, logits, targets[rows])
 
         def update(carry, rng_step):
             params, opt_state = carry
@@ -197,12 +198,13 @@ def make_train_translator(config: TalarConfig):
     return train
 
 
-def make_translate(config: TalarConfig):
-    """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L_T|)`` hard task language."""
-    _, _, translator = _networks(config, 1)
+def make_translate(config: TalarConfig, spec: TaskLanguageSpec | None = None):
+    """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L|)`` hard language codes."""
+    spec = spec if spec is not None else config.spec
+    translator = Translator(spec, config.translator_hidden)
 
     def translate(translator_params, sentence_embeddings: jax.Array) -> jax.Array:
-        return decode_translation(config.spec, translator.apply(translator_params, sentence_embeddings))
+        return decode_translation(spec, translator.apply(translator_params, sentence_embeddings))
 
     return translate
 

@@ -31,9 +31,11 @@ class TaskLanguageSpec:
     """Size of each argument network's one-hot output."""
 
     def __post_init__(self):
-        for name in ("num_predicates", "num_arguments", "arg_size"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"TaskLanguageSpec.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("num_predicates", "num_arguments"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"TaskLanguageSpec.{name} must be >= 0, got {getattr(self, name)}")
+        if self.arg_size < 1 or self.size < 1:
+            raise ValueError(f"TaskLanguageSpec needs arg_size >= 1 and at least one predicate or argument: {self}")
 
     @property
     def size(self) -> int:

@@ -52,7 +52,13 @@ def test_translator_loss_hand_values_and_decoding():
     np.testing.assert_allclose(translator_loss(spec, logits, target), 2 * np.log(2), rtol=1e-6)
     np.testing.assert_array_equal(decode_translation(spec, jnp.array([[2.0, -1.0, 3.0]])), [[1.0, 0.0, 1.0]])
     with pytest.raises(ValueError, match="num_predicates"):
-        TaskLanguageSpec(num_predicates=0)
+        TaskLanguageSpec(num_predicates=-1)
+    with pytest.raises(ValueError, match="at least one"):
+        TaskLanguageSpec(num_predicates=0, num_arguments=0)
+    goal_code = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=3)  # e.g. a goal one-hot
+    np.testing.assert_allclose(
+        translator_loss(goal_code, jnp.log(jnp.array([[0.2, 0.5, 0.3]])), jnp.array([[0.0, 1.0, 0.0]])), -np.log(0.5)
+    )
 
 
 def _toy_data(num_goals=4, per_goal=6, tuples=2048, dim=8, seed=0):
@@ -98,9 +104,12 @@ def test_talar_learns_a_task_language_that_separates_goals_on_a_toy_task():
     final = np.asarray(rg_losses[:, -200:].mean(1))
     assert np.all(final < 0.25), final
     assert np.all(final < np.asarray(rg_losses[:, :50].mean(1)))
+    generate = jax.vmap(make_generate_task_language(config), in_axes=(0, None, None))
+    targets = generate(params["generator"], data.states, data.final_states)
     translator_params, tr_losses = jax.jit(jax.vmap(make_train_translator(config), in_axes=(0, 0, None)))(
-        seeds, params["generator"], data
+        seeds, targets, data
     )
+    assert float(tr_losses[:, -100:].mean()) < 0.1 * float(tr_losses[:, :20].mean())
     table = jax.vmap(make_translate(config), in_axes=(0, None))(translator_params, data.sentence_embeddings)
     for seed in range(2):
         quality = task_language_quality(np.asarray(table[seed]), sentence_goal, is_train)
