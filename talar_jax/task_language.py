@@ -63,7 +63,7 @@ def gumbel_softmax(logits: jax.Array, rng: jax.Array | None, temperature: float 
     return hard + (soft - jax.lax.stop_gradient(soft))  # exactly one-hot forward
 
 
-class _MLP(nn.Module):
+class ReluMLP(nn.Module):
     """Dense layers with an activation between them (none after the last)."""
 
     layer_sizes: Sequence[int]
@@ -99,14 +99,14 @@ class TaskLanguageGenerator(nn.Module):
         )
         arguments = [
             gumbel_softmax(
-                _MLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(pair), keys[i], self.temperature
+                ReluMLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(pair), keys[i], self.temperature
             )
             for i in range(spec.num_arguments)
         ]
         predicate_input = jnp.concatenate([pair, *arguments], axis=-1)
         predicates = [
             gumbel_softmax(
-                _MLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input),
+                ReluMLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input),
                 keys[spec.num_arguments + j],
                 self.temperature,
             )[..., 1:]
@@ -124,7 +124,7 @@ class Receiver(nn.Module):
     @nn.compact
     def __call__(self, task_language: jax.Array, prefix_embedding: jax.Array) -> jax.Array:
         """Args: task_language (..., |L_T|); prefix_embedding (..., D). Returns logits (..., vocab_size)."""
-        return _MLP((*self.hidden_sizes, self.vocab_size))(jnp.concatenate([task_language, prefix_embedding], -1))
+        return ReluMLP((*self.hidden_sizes, self.vocab_size))(jnp.concatenate([task_language, prefix_embedding], -1))
 
 
 class Translator(nn.Module):
@@ -136,7 +136,7 @@ class Translator(nn.Module):
     @nn.compact
     def __call__(self, sentence_embedding: jax.Array) -> jax.Array:
         """Args: sentence_embedding (..., D). Returns logits (..., spec.size) (see ``translator_loss``)."""
-        return _MLP((*self.hidden_sizes, self.spec.size))(sentence_embedding)
+        return ReluMLP((*self.hidden_sizes, self.spec.size))(sentence_embedding)
 
 
 def split_task_language(spec: TaskLanguageSpec, x: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -1,0 +1,116 @@
+"""The paper's outside-in baselines (section 5.1, Appendix E.7): instruction encodings fed to the same PPO.
+
+* One-hot: a unique one-hot per instruction over train and test instructions together (``one_hot_table``).
+* BERT-binary / BERT-continuous: a dense layer on the frozen sentence embedding, made binary with a
+  straight-through Bernoulli (reparameterisation) trick or left continuous, trained jointly with the policy by RL
+  (``NLEncodingLayer``); the "pre-trained" variants first fit policy and layer by behaviour cloning.
+* GLA: a latent-action auto-encoder of state pairs (``LatentActionAutoencoder``); instructions are then
+  translated into its binary latent code (``make_train_gla``).
+* Handcrafted: the translator trained to a one-hot of the goal instead of the generator's TL (``goal_one_hot``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from talar_jax.task_language import ReluMLP
+
+
+def one_hot_table(num_instructions: int) -> np.ndarray:
+    """(S, S) identity: instruction i is encoded as e_i (One-hot baseline)."""
+    return np.eye(num_instructions, dtype=np.float32)
+
+
+def goal_one_hot(goal_ids: np.ndarray, num_goals: int) -> np.ndarray:
+    """(N, num_goals) one-hot of each tuple's goal: the Handcrafted baseline's translation target."""
+    return np.eye(num_goals, dtype=np.float32)[np.asarray(goal_ids)]
+
+
+def straight_through_bernoulli(logits: jax.Array, rng: jax.Array | None) -> jax.Array:
+    """Binary sample with the gradient of its probability (sigmoid); ``rng=None`` thresholds at 0.5."""
+    probs = jax.nn.sigmoid(logits)
+    if rng is None:
+        hard = (probs > 0.5).astype(probs.dtype)
+    else:
+        hard = (jax.random.uniform(rng, probs.shape) < probs).astype(probs.dtype)
+    return hard + (probs - jax.lax.stop_gradient(probs))
+
+
+class NLEncodingLayer(nn.Module):
+    """Dense layer on a frozen sentence embedding: binary (straight-through) or continuous (tanh) code."""
+
+    size: int
+    binary: bool
+
+    @nn.compact
+    def __call__(self, sentence_embedding: jax.Array, rng: jax.Array | None = None) -> jax.Array:
+        logits = nn.Dense(self.size)(sentence_embedding)
+        return straight_through_bernoulli(logits, rng) if self.binary else jnp.tanh(logits)
+
+
+class LatentActionAutoencoder(nn.Module):
+    """GLA: encode (s, s') into a binary latent action z, decode s' from (s, z) (Table 2 sizes)."""
+
+    latent_size: int
+    observation_size: int
+    encoder_hidden: Sequence[int] = (128, 128, 64)
+    decoder_hidden: Sequence[int] = (64, 128, 128)
+
+    def setup(self):
+        self.encoder = ReluMLP((*self.encoder_hidden, self.latent_size))
+        self.decoder = ReluMLP((*self.decoder_hidden, self.observation_size))
+
+    def encode(self, state: jax.Array, next_state: jax.Array, rng: jax.Array | None = None) -> jax.Array:
+        """(..., obs) x 2 -> (..., latent_size) binary latent action."""
+        return straight_through_bernoulli(self.encoder(jnp.concatenate([state, next_state], -1)), rng)
+
+    def decode(self, state: jax.Array, latent: jax.Array) -> jax.Array:
+        """Predicts s' (..., obs) from s and the latent action."""
+        return self.decoder(jnp.concatenate([state, latent], -1))
+
+    def __call__(self, state, next_state, rng=None):
+        latent = self.encode(state, next_state, rng)
+        return self.decode(state, latent), latent
+
+
+def make_train_gla(latent_size: int, observation_size: int, steps: int, batch_size: int, learning_rate: float):
+    """Returns ``train(rng, states, final_states) -> (params, losses)``: reconstruction MSE of s_T."""
+    model = LatentActionAutoencoder(latent_size, observation_size)
+    optimizer = optax.adam(learning_rate)
+
+    def train(rng, states, final_states):
+        rng_init, rng_steps = jax.random.split(rng)
+        params = model.init(rng_init, states[:1], final_states[:1])
+
+        def loss_fn(params, rng_step):
+            rng_rows, rng_noise = jax.random.split(rng_step)
+            rows = jax.random.randint(rng_rows, (batch_size,), 0, states.shape[0])
+            prediction, _ = model.apply(params, states[rows], final_states[rows], rng_noise)
+            return jnp.mean((prediction - final_states[rows]) ** 2)
+
+        def update(carry, rng_step):
+            params, opt_state = carry
+            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step)
+            updates, opt_state = optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), loss
+
+        (params, _), losses = jax.lax.scan(update, (params, optimizer.init(params)), jax.random.split(rng_steps, steps))
+        return params, losses
+
+    return train
+
+
+def make_gla_codes(latent_size: int, observation_size: int):
+    """Returns ``codes(params, states, final_states) -> (N, latent_size)`` deterministic latent actions."""
+    model = LatentActionAutoencoder(latent_size, observation_size)
+
+    def codes(params, states, final_states):
+        return model.apply(params, states, final_states, None, method=LatentActionAutoencoder.encode)
+
+    return codes
