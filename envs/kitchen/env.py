@@ -135,9 +135,11 @@ class KitchenEnv(Env):
     def load_model(self) -> mujoco.MjModel:
         model = super().load_model()
         model.opt.timestep = self.config.timestep
-        model.opt.integrator = {"euler": mujoco.mjtIntegrator.mjINT_EULER, "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}[
-            self.config.integrator
-        ]
+        integrators = {
+            "euler": mujoco.mjtIntegrator.mjINT_EULER,
+            "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+        }
+        model.opt.integrator = integrators[self.config.integrator]
         model.opt.iterations = self.config.solver_iterations
         model.opt.ls_iterations = self.config.ls_iterations
         return model

@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     qpos, first = scripted_qpos_trajectory(env, args.task)
     end = first + 2 if first >= 0 else len(qpos)
     try:
-        frames = render_frames(env.mj_model, qpos[:end:args.every], args.width, args.height)
+        frames = render_frames(env.mj_model, qpos[: end : args.every], args.width, args.height)
     except Exception as error:  # no GL context: say how to get one
         print(f"rendering failed ({error}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa (see module docstring)")
         return 2

@@ -145,7 +145,8 @@ def waypoint_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         for k in range(NUM_WAYPOINTS):
             if k < len(_PLANS[name]):
                 pos, z_axis, y_axis, fingers, duration = _PLANS[name][k]
-                q = _solve_best(model, data, site, pos, np.asarray(z_axis), None if y_axis is None else np.asarray(y_axis), q)
+                y_axis = None if y_axis is None else np.asarray(y_axis)
+                q = _solve_best(model, data, site, pos, np.asarray(z_axis), y_axis, q)
                 step += duration
             waypoints[goal, k] = np.concatenate([q, [fingers, fingers]])
             data.qpos[:] = init_qpos
