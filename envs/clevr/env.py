@@ -1,0 +1,163 @@
+"""CLEVR-Robot env (``clevr``: 80 push goals; ``clevr-arrangement``: Appendix D.1.3) on MJX or MuJoCo C."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+
+from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.clevr import tasks
+from envs.physics import PhysicsState
+
+TASK_KINDS: tuple[str, ...] = ("goal", "arrangement")
+_PUSHER_QPOS = slice(2 * tasks.NUM_BALLS, 2 * tasks.NUM_BALLS + 2)  # pusher x, y in the lean model's qpos
+
+
+@dataclasses.dataclass(frozen=True)
+class ClevrConfig(EnvConfig):
+    """CLEVR-Robot options (defaults: the original env's semantics on the calibrated lean physics)."""
+
+    episode_length: int = 50
+    """Steps per episode (TALAR: 50)."""
+    task: str = "goal"
+    """'goal': one of 80 push goals per episode; 'arrangement': the 6-constraint arrangement task."""
+    fail_on_displacement: bool = False
+    """Goal task: terminate with -10 when a non-source ball moves > 0.2 from its episode-start position."""
+    timestep: float = 0.02
+    """Physics timestep in seconds (lean calibration; the original used 0.01)."""
+    substeps: int = 20
+    """Physics steps per action; timestep x substeps = 0.4 s of pushing, as in the original."""
+    solver_iterations: int = 4
+    """Newton solver iterations (original: 20; results identical from 2 up on this model)."""
+
+
+@struct.dataclass
+class ClevrTask:
+    """Per-episode task data (the arrangement task has no goal: goal/source/destination/relation are -1)."""
+
+    goal: jax.Array  # () int32 goal id in [0, 80) (tasks.py), -1 for arrangement
+    source: jax.Array  # () int32 colour index of the ball to move
+    destination: jax.Array  # () int32 colour index of the reference ball
+    relation: jax.Array  # () int32 index into tasks.RELATIONS (0 front, 1 behind, 2 left, 3 right)
+    start_xy: jax.Array  # (5, 2) float32 ball centres at the episode start
+    distance: jax.Array  # () float32 source-to-target distance after the last step (the dense reward's d_prev)
+
+
+class ClevrEnv(Env):
+    """Five balls on a table and a point pusher (Jiang et al. 2019 CLEVR-Robot; TALAR's goal semantics).
+
+    | action a in [0, 40) | meaning |
+    |---|---|
+    | a // 8 | ball to push (0 red, 1 blue, 2 green, 3 purple, 4 cyan) |
+    | a % 8 | direction: +x, +y, -x, -y, then (+x+y, -x+y, +x-y, -x-y) x 0.8 (force per axis, N) |
+
+    A push teleports the pusher 0.15 d behind the ball (zero pusher velocity) and applies force d for 0.4 s;
+    ball velocities carry over between steps. Float score vectors of length 40 are argmax-ed.
+
+    | observation index | meaning |
+    |---|---|
+    | 2i, 2i + 1 | x, y of ball i (metres; front = +y, right = +x) |
+
+    ``goal``: reward 10 (d_prev - d) with d the distance from the source to destination + 0.195 u_relation,
+    +100 and termination on success (right sector and centre distance < 0.39); optional -10 displacement
+    failure. ``arrangement``: reward = number of the 6 constraints holding (sector test, no distance limit);
+    terminates with success when all 6 hold.
+    """
+
+    config_class = ClevrConfig
+    xml_path = Path(__file__).parent / "xmls" / "clevr.xml"
+
+    def __init__(self, config: ClevrConfig | None = None, physics: str = "mjx"):
+        config = config if config is not None else ClevrConfig()
+        if isinstance(config, ClevrConfig):
+            if config.task not in TASK_KINDS:
+                raise ValueError(f"unknown task {config.task!r}; choose one of {', '.join(TASK_KINDS)}")
+            if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1:
+                raise ValueError("timestep must be > 0, substeps >= 1 and solver_iterations >= 1")
+        super().__init__(config, physics)
+        self._arrangement = self.config.task == "arrangement"
+
+    def load_model(self) -> mujoco.MjModel:
+        model = super().load_model()
+        model.opt.timestep = self.config.timestep
+        model.opt.iterations = self.config.solver_iterations
+        return model
+
+    # --- sizes ----------------------------------------------------------------------------------
+    @property
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec("discrete", tasks.NUM_ACTIONS)
+
+    @property
+    def num_goals(self) -> int:
+        """80 push goals; the arrangement task is a single fixed goal."""
+        return 1 if self._arrangement else tasks.NUM_GOALS
+
+    @property
+    def observation_size(self) -> int:
+        return 2 * tasks.NUM_BALLS
+
+    # --- functional API -------------------------------------------------------------------------
+    def reset(self, rng: jax.Array) -> State:
+        rng_balls, rng_goal = jax.random.split(rng)
+        ball_xy = tasks.sample_ball_positions(rng_balls)
+        qpos = jnp.zeros(self.mj_model.nq, jnp.float32).at[: self.observation_size].set(ball_xy.reshape(-1))
+        data = self.physics.init(qpos)
+        if self._arrangement:
+            none = jnp.int32(-1)
+            task = ClevrTask(none, none, none, none, ball_xy, jnp.float32(0.0))
+        else:
+            goal = tasks.sample_goal(rng_goal, ball_xy)
+            task = ClevrTask(
+                goal=goal,
+                source=jnp.asarray(tasks.GOAL_SOURCE)[goal],
+                destination=jnp.asarray(tasks.GOAL_DESTINATION)[goal],
+                relation=jnp.asarray(tasks.GOAL_RELATION)[goal],
+                start_xy=ball_xy,
+                distance=tasks.goal_distance(ball_xy, goal),
+            )
+        zero = jnp.zeros((), jnp.float32)
+        metrics = self._metrics(ball_xy, task, zero, zero)
+        return State(data=data, obs=ball_xy.reshape(-1), reward=zero, done=zero, metrics=metrics, info={}, task=task)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.check_action(action)
+        ball, direction = action // tasks.NUM_DIRECTIONS, action % tasks.NUM_DIRECTIONS
+        force = jnp.asarray(tasks.PUSH_DIRECTIONS)[direction]
+        data: PhysicsState = state.data
+        ball_xy = data.qpos[: self.observation_size].reshape(tasks.NUM_BALLS, 2)
+        pusher_xy = ball_xy[ball] - tasks.PUSH_OFFSET * force
+        qpos, qvel = data.qpos.at[_PUSHER_QPOS].set(pusher_xy), data.qvel.at[_PUSHER_QPOS].set(0.0)
+        teleported = data.replace(qpos=qpos, qvel=qvel)
+        data = self.physics.step(teleported, force, self.config.substeps)
+        obs = data.qpos[: self.observation_size]
+        ball_xy = obs.reshape(tasks.NUM_BALLS, 2)
+        task: ClevrTask = state.task
+        if self._arrangement:
+            satisfied = tasks.arrangement_satisfied(ball_xy)
+            success = jnp.all(satisfied)
+            failure = jnp.bool_(False)
+            reward = jnp.sum(satisfied).astype(jnp.float32)
+        else:
+            distance = tasks.goal_distance(ball_xy, task.goal)
+            success = tasks.goal_success(ball_xy, task.goal)
+            failure = jnp.bool_(False)
+            if self.config.fail_on_displacement:
+                failure = tasks.displacement_failure(ball_xy, task.start_xy, task.source) & ~success
+            reward = tasks.goal_reward(task.distance, distance, success, failure)
+            task = task.replace(distance=distance)
+        success, failure = success.astype(jnp.float32), failure.astype(jnp.float32)
+        metrics = self._metrics(ball_xy, task, success, failure)
+        done = jnp.maximum(success, failure)
+        return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
+
+    def _metrics(self, ball_xy: jax.Array, task: ClevrTask, success: jax.Array, failure: jax.Array) -> dict:
+        if self._arrangement:
+            num_satisfied = jnp.sum(tasks.arrangement_satisfied(ball_xy)).astype(jnp.float32)
+            return {"success": success, "num_satisfied": num_satisfied}
+        return {"success": success, "failure": failure, "distance": task.distance}
