@@ -1,0 +1,67 @@
+"""Orbax checkpoints of the training state after each chunk, with the resolved config as JSON beside them."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import orbax.checkpoint as ocp
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A frozen dataclass config -> a JSON-ready dict (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def write_json_atomic(path: str | Path, payload: Any) -> None:
+    """Writes JSON to a temporary file beside ``path`` and renames it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(handle, "w") as file:
+        json.dump(payload, file, indent=2, sort_keys=True)
+    os.replace(temporary, path)
+
+
+class Checkpointer:
+    """Saves/restores a training-state pytree per step under ``directory/checkpoints``.
+
+    ``directory/config.json`` holds the config; resuming with a different config raises, naming the
+    differing fields. Saving is synchronous (a killed run never leaves a half-written latest step).
+    """
+
+    def __init__(self, directory: str | Path, config: Any, max_to_keep: int = 2):
+        self.directory = Path(directory).absolute()
+        self.directory.mkdir(parents=True, exist_ok=True)
+        config_path = self.directory / "config.json"
+        resolved = config_to_dict(config)
+        if config_path.exists():
+            saved = json.loads(config_path.read_text())
+            if saved != resolved:
+                differing = sorted(k for k in set(saved) | set(resolved) if saved.get(k) != resolved.get(k))
+                raise ValueError(
+                    f"{self.directory} holds a run with a different config (fields {', '.join(differing)}); "
+                    "use another output directory or the same config to resume"
+                )
+        else:
+            write_json_atomic(config_path, resolved)
+        options = ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, enable_async_checkpointing=False)
+        self.manager = ocp.CheckpointManager(self.directory / "checkpoints", options=options)
+
+    def latest_step(self) -> int | None:
+        return self.manager.latest_step()
+
+    def save(self, step: int, state: Any) -> None:
+        self.manager.save(step, args=ocp.args.StandardSave(state))
+        self.manager.wait_until_finished()
+
+    def restore(self, step: int, target: Any) -> Any:
+        """Restores ``step`` into the structure (and shapes/dtypes) of ``target``."""
+        return self.manager.restore(step, args=ocp.args.StandardRestore(target))
+
+    def close(self) -> None:
+        self.manager.close()

@@ -1,0 +1,212 @@
+"""Task dataset: roll out a goal-conditioned policy in many envs; keep (s_i, a_i, s_T, L_N) of successful episodes."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from envs.wrappers import EpisodeWrapper
+from talar_jax.acting import goal_of
+from talar_jax.checkpoint import write_json_atomic
+from talar_jax.conditioning import Conditioner
+from talar_jax.networks import PPONetworks, make_inference_fn, make_ppo_networks
+
+_ARRAYS = ("states", "final_states", "actions", "instruction_ids", "goal_ids", "episode_ids")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TaskDataset:
+    """Tuples from successful episodes only (s_T must show the goal achieved).
+
+    Attributes:
+        states: (N, obs) float32 s_i, every state of a successful episode where an action was taken.
+        final_states: (N, obs) float32 s_T, the state in which that episode succeeded.
+        actions: (N,) int32 or (N, action) float32 a_i taken in s_i (for behaviour cloning).
+        instruction_ids: (N,) int32 L_N, a training instruction of the episode's goal drawn per tuple.
+        goal_ids: (N,) int32 goal of the episode.
+        episode_ids: (N,) int32 episode each tuple comes from.
+        config: how the dataset was made (JSON-ready).
+    """
+
+    states: np.ndarray
+    final_states: np.ndarray
+    actions: np.ndarray
+    instruction_ids: np.ndarray
+    goal_ids: np.ndarray
+    episode_ids: np.ndarray
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        count = len(self.states)
+        if any(len(getattr(self, name)) != count for name in _ARRAYS):
+            raise ValueError(f"all arrays need {count} rows: " + str({n: len(getattr(self, n)) for n in _ARRAYS}))
+
+    def __len__(self) -> int:
+        return len(self.states)
+
+    def save(self, directory: str | Path) -> Path:
+        """Writes ``task_dataset.npz`` and ``task_dataset.json`` (config) atomically; returns the npz path."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        path = directory / "task_dataset.npz"
+        handle, temporary = tempfile.mkstemp(dir=directory, prefix=".task_dataset.", suffix=".npz")
+        with os.fdopen(handle, "wb") as file:
+            np.savez(file, **{name: getattr(self, name) for name in _ARRAYS})
+        os.replace(temporary, path)
+        write_json_atomic(directory / "task_dataset.json", {"num_tuples": len(self), **self.config})
+        return path
+
+    @classmethod
+    def load(cls, directory: str | Path) -> TaskDataset:
+        directory = Path(directory)
+        path = directory / "task_dataset.npz"
+        if not path.exists():
+            raise FileNotFoundError(f"no task dataset at {path}")
+        with np.load(path) as arrays:
+            fields = {name: arrays[name] for name in _ARRAYS}
+        meta_path = directory / "task_dataset.json"
+        config = json.loads(meta_path.read_text()) if meta_path.exists() else {}
+        config.pop("num_tuples", None)
+        return cls(**fields, config=config)
+
+
+class _Roller:
+    """Jitted rounds: reset ``num_envs`` envs, play ``episode_length`` steps, return the time-major record."""
+
+    def __init__(self, env: Any, networks: PPONetworks, conditioner: Conditioner, deterministic: bool):
+        self.env = EpisodeWrapper(env)
+        self.conditioner = conditioner
+        self.make_policy = make_inference_fn(networks)
+        self.deterministic = deterministic
+
+    def round(self, params: dict[str, Any], rng: jax.Array, num_envs: int) -> dict[str, jax.Array]:
+        rng_reset, rng_instruction, rng_act = jax.random.split(rng, 3)
+        state = jax.vmap(self.env.reset)(jax.random.split(rng_reset, num_envs))
+        goal = goal_of(state)
+        sample = jax.vmap(self.conditioner.sample, in_axes=(0, 0, None))
+        instruction = sample(jax.random.split(rng_instruction, num_envs), goal, "train")
+        cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+        policy = self.make_policy(params, self.deterministic)
+        step_envs = jax.vmap(self.env.step)
+
+        def one_step(state, rng_step):
+            action = policy(state.obs, cond, rng_step)
+            next_state = step_envs(state, action)
+            record = {"obs": state.obs, "action": action, "next_obs": next_state.obs, "done": next_state.done,
+                      "success": next_state.metrics["success"]}  # fmt: skip
+            return next_state, record
+
+        _, record = jax.lax.scan(one_step, state, jax.random.split(rng_act, self.env.episode_length))
+        return {**record, "goal": goal}
+
+
+def _goals_with_instructions(sampler: Any, num_goals: int) -> np.ndarray:
+    """(num_goals,) bool: whether the sampler has a training instruction for each goal (others are skipped)."""
+    keys = jax.random.split(jax.random.PRNGKey(0), num_goals)
+    goals = jnp.arange(num_goals, dtype=jnp.int32)
+    return np.asarray(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train"))(keys, goals)) >= 0
+
+
+def collect_task_dataset(
+    env: Any,
+    policy_params: dict[str, Any],
+    conditioner: Conditioner,
+    num_tuples: int,
+    rng: jax.Array,
+    *,
+    instruction_sampler: Any = None,
+    networks: PPONetworks | None = None,
+    hidden_sizes: tuple[int, ...] = (32, 64, 64),
+    num_envs: int = 256,
+    deterministic: bool = False,
+    max_rounds: int = 1000,
+    progress: bool = False,
+    config: dict[str, Any] | None = None,
+) -> TaskDataset:
+    """Rolls out a goal-conditioned policy and keeps the tuples of its successful episodes.
+
+    Args:
+        env: the unwrapped env (a time limit is added).
+        policy_params: one seed's ``{"policy": ..., "conditioner": ...}`` parameters (no seed axis).
+        conditioner: what the policy is conditioned on (the goal one-hot for the oracle).
+        num_tuples: tuples to keep (the last episode is cut to reach exactly this many).
+        rng: PRNG key.
+        instruction_sampler: has ``sample(rng, goal, split)``; draws each tuple's L_N from the goal's training
+            instructions (``None``: the acting conditioner, i.e. L_N = goal id for the oracle).
+        networks: the policy's networks (default: ``make_ppo_networks`` with ``hidden_sizes``).
+        hidden_sizes: hidden layers when ``networks`` is None.
+        num_envs: parallel episodes per round.
+        deterministic: act with the policy's mode instead of samples.
+        max_rounds: give up (raise) after this many rounds.
+        progress: show a tqdm bar over tuples.
+        config: stored in the dataset (with the collection statistics added).
+
+    Returns:
+        The ``TaskDataset``; ``config["collection"]`` has episodes, successes, rounds and seconds.
+    """
+    if num_tuples < 1:
+        raise ValueError(f"num_tuples must be >= 1, got {num_tuples}")
+    if networks is None:
+        networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
+    roller = _Roller(env, networks, conditioner, deterministic)
+    round_fn = jax.jit(roller.round, static_argnums=2)
+    sampler = instruction_sampler if instruction_sampler is not None else conditioner
+    draw = jax.jit(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train")))
+    start = time.perf_counter()
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in ("states", "final_states", "actions", "goal_ids", "episode_ids")}  # noqa: E501
+    kept, episodes, successes, rounds, kept_episodes = 0, 0, 0, 0, 0
+    has_language = _goals_with_instructions(sampler, env.num_goals)
+    bar = tqdm(total=num_tuples, disable=not progress, unit="tuple", desc="collect")
+    while kept < num_tuples:
+        if rounds >= max_rounds:
+            raise RuntimeError(f"only {kept} of {num_tuples} tuples after {rounds} rounds ({successes} successes)")
+        rng, rng_round = jax.random.split(rng)
+        record = jax.device_get(round_fn(policy_params, rng_round, num_envs))
+        rounds += 1
+        done = np.asarray(record["done"]) > 0.5  # (T, E)
+        ended = done.any(axis=0)
+        end = np.argmax(done, axis=0)
+        succeeded = ended & (np.asarray(record["success"])[end, np.arange(num_envs)] > 0.5)
+        successes += int(succeeded.sum())
+        for env_index in np.flatnonzero(succeeded & has_language[np.asarray(record["goal"])]):
+            if kept >= num_tuples:
+                break
+            length = min(int(end[env_index]) + 1, num_tuples - kept)
+            final = record["next_obs"][end[env_index], env_index]
+            parts["states"].append(record["obs"][:length, env_index])
+            parts["actions"].append(record["action"][:length, env_index])
+            parts["final_states"].append(np.broadcast_to(final, (length, final.shape[-1])))
+            parts["goal_ids"].append(np.full(length, record["goal"][env_index], np.int32))
+            parts["episode_ids"].append(np.full(length, kept_episodes, np.int32))
+            kept_episodes += 1
+            kept += length
+            bar.update(length)
+        episodes += num_envs
+    bar.close()
+    arrays = {name: np.concatenate(chunks) for name, chunks in parts.items()}
+    rng, rng_language = jax.random.split(rng)
+    keys = jax.random.split(rng_language, len(arrays["goal_ids"]))
+    instruction_ids = np.asarray(draw(keys, jnp.asarray(arrays["goal_ids"])), np.int32)
+    collection = {"episodes": episodes, "successful_episodes": successes, "kept_episodes": kept_episodes,
+                  "goals_without_train_instructions": np.flatnonzero(~has_language).tolist(), "rounds": rounds,
+                  "success_rate": successes / max(episodes, 1), "seconds": time.perf_counter() - start,
+                  "num_envs": num_envs, "deterministic": deterministic, "kept": "successful episodes only"}  # fmt: skip
+    return TaskDataset(
+        states=arrays["states"].astype(np.float32),
+        final_states=arrays["final_states"].astype(np.float32),
+        actions=arrays["actions"],
+        instruction_ids=instruction_ids,
+        goal_ids=arrays["goal_ids"],
+        episode_ids=arrays["episode_ids"],
+        config={**(config or {}), "collection": collection},
+    )

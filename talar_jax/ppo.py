@@ -1,0 +1,453 @@
+"""End-to-end jitted PPO (PureJaxRL shape) shared by the oracle and every language-conditioned method.
+
+``make_train(config, env, conditioner)`` returns pure functions: ``init(rng)``, ``chunk(state)`` (a
+``lax.scan`` over ``updates_per_chunk`` updates: rollout, reward normalisation, GAE, epochs x minibatches),
+``evaluate(params, rng, split)`` and ``train(rng)`` (all chunks in one program). ``run_ppo`` vmaps them over
+seeds, jits them, and runs the host loop: progress bar, evaluation on the train/test instruction splits,
+JSON-lines logging, orbax checkpoints after each chunk and resume from the latest one. Discrete or
+continuous actions are chosen by the env's action spec (``networks.make_distribution``), nothing else.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from tqdm.auto import tqdm
+
+from talar_jax.acting import ConditionedEnv, evaluate_episodes, generate_unroll
+from talar_jax.checkpoint import Checkpointer, write_json_atomic
+from talar_jax.conditioning import SPLITS, Conditioner, check_split
+from talar_jax.logging import JsonLinesLogger, Logger, MultiLogger, NoOpLogger
+from talar_jax.losses import compute_gae, compute_ppo_loss, init_return_normalizer, normalize_rollout_rewards
+from talar_jax.networks import PPONetworks, make_inference_fn, make_ppo_networks
+from talar_jax.types import TrainingState
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters (defaults: the paper's Table 2 where it gives them, SB3 otherwise)."""
+
+    num_envs: int = 64
+    """Parallel environments per seed."""
+    rollout_length: int = 64
+    """Env steps per environment per update."""
+    total_env_steps: int = 2_000_000
+    """Env steps per seed (rounded up to whole chunks)."""
+    num_epochs: int = 10
+    """Passes over each rollout (Table 2)."""
+    minibatch_size: int = 128
+    """Transitions per gradient step (Table 2)."""
+    learning_rate: float = 3e-4
+    """Adam step size (Table 2)."""
+    gamma: float = 0.99
+    """Discount."""
+    gae_lambda: float = 0.95
+    """GAE lambda."""
+    clip_eps: float = 0.2
+    """Probability-ratio clip range."""
+    ent_coef: float = 0.0
+    """Entropy bonus weight (SB3 default 0)."""
+    vf_coef: float = 0.5
+    """Value loss weight."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+    hidden_sizes: tuple[int, ...] = (32, 64, 64)
+    """Hidden layers of both the policy and the value MLP (tanh; Table 2)."""
+    normalize_rewards: bool = True
+    """Divide rewards by the running std of the discounted return (SB3 VecNormalize, rewards only)."""
+    reward_clip: float = 10.0
+    """Clip of the normalised reward."""
+    normalize_advantages: bool = True
+    """Normalise advantages per minibatch."""
+    num_seeds: int = 1
+    """Independent seeds, vmapped in one compiled program."""
+    seed: int = 0
+    """Base seed; seed i of the run uses split(PRNGKey(seed), num_seeds)[i]."""
+    updates_per_chunk: int = 10
+    """Updates per jitted chunk (host work - eval, logging, checkpoints - happens between chunks)."""
+    eval_every_chunks: int = 1
+    """Evaluate every this many chunks (and after the last one)."""
+    eval_episodes: int = 160
+    """Parallel evaluation episodes per seed and split."""
+    eval_deterministic: bool = True
+    """Evaluate the policy's mode (True) or samples (False)."""
+
+    def __post_init__(self):
+        positive = ("num_envs", "rollout_length", "total_env_steps", "num_epochs", "minibatch_size", "num_seeds",
+                    "updates_per_chunk", "eval_every_chunks", "eval_episodes")  # fmt: skip
+        for name in positive:
+            if getattr(self, name) < 1:
+                raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if (self.num_envs * self.rollout_length) % self.minibatch_size:
+            raise ValueError(
+                f"num_envs * rollout_length ({self.num_envs * self.rollout_length}) must be a multiple of "
+                f"minibatch_size ({self.minibatch_size})"
+            )
+        object.__setattr__(self, "hidden_sizes", tuple(int(size) for size in self.hidden_sizes))
+
+
+class PPODerived(NamedTuple):
+    """Sizes derived from a ``PPOConfig`` (never stored back into it)."""
+
+    batch_size: int
+    num_minibatches: int
+    env_steps_per_update: int
+    env_steps_per_chunk: int
+    num_chunks: int
+    num_updates: int
+    total_env_steps: int
+
+
+def derive(config: PPOConfig) -> PPODerived:
+    """Batch and loop sizes of a config; total env steps round up to whole chunks."""
+    per_update = config.num_envs * config.rollout_length
+    per_chunk = per_update * config.updates_per_chunk
+    num_chunks = max(1, math.ceil(config.total_env_steps / per_chunk))
+    return PPODerived(
+        batch_size=per_update,
+        num_minibatches=per_update // config.minibatch_size,
+        env_steps_per_update=per_update,
+        env_steps_per_chunk=per_chunk,
+        num_chunks=num_chunks,
+        num_updates=num_chunks * config.updates_per_chunk,
+        total_env_steps=num_chunks * per_chunk,
+    )
+
+
+class Minibatch(NamedTuple):
+    """Flat (B, ...) learner inputs."""
+
+    obs: jax.Array
+    instruction: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    advantages: jax.Array
+    returns: jax.Array
+
+
+class Trainer(NamedTuple):
+    """Pure functions of one seed (vmap over seeds, then jit)."""
+
+    networks: PPONetworks
+    make_policy: Callable[..., Callable[..., jax.Array]]
+    init: Callable[[jax.Array], TrainingState]
+    chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, jax.Array]]]
+    evaluate: Callable[..., dict[str, jax.Array]]
+    train: Callable[[jax.Array], tuple[TrainingState, dict[str, jax.Array]]]
+
+
+class _Learner:
+    """Holds the constants of a run; every method is a pure function of its arguments."""
+
+    def __init__(self, config: PPOConfig, env: Any, conditioner: Conditioner):
+        self.config = config
+        self.sizes = derive(config)
+        self.conditioner = conditioner
+        self.env = ConditionedEnv(env, conditioner, "train")
+        self.eval_envs = {split: ConditionedEnv(env, conditioner, split) for split in SPLITS}
+        self.networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, config.hidden_sizes)
+        self.distribution = self.networks.distribution
+        self.make_policy = make_inference_fn(self.networks)
+        self.optimizer = optax.chain(
+            optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate, eps=1e-5)
+        )
+
+    # --- network application -------------------------------------------------------------------
+    def _inputs(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array) -> jax.Array:
+        cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+        return jnp.concatenate([obs, cond], axis=-1)
+
+    def policy_step(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array, rng: jax.Array):
+        """Batched acting: (action, log_prob, value) for (N, obs) observations."""
+        inputs = self._inputs(params, obs, instruction)
+        dist_params = self.networks.policy.apply(params["policy"], inputs)
+        action = self.distribution.sample(rng, dist_params)
+        value = self.networks.value.apply(params["value"], inputs)
+        return action, self.distribution.log_prob(dist_params, action), value
+
+    def _loss(self, params: dict[str, Any], batch: Minibatch) -> tuple[jax.Array, dict[str, jax.Array]]:
+        inputs = self._inputs(params, batch.obs, batch.instruction)
+        dist_params = self.networks.policy.apply(params["policy"], inputs)
+        c = self.config
+        return compute_ppo_loss(
+            log_prob=self.distribution.log_prob(dist_params, batch.action),
+            old_log_prob=batch.log_prob,
+            advantages=batch.advantages,
+            values=self.networks.value.apply(params["value"], inputs),
+            returns=batch.returns,
+            entropy=self.distribution.entropy(dist_params),
+            clip_eps=c.clip_eps,
+            vf_coef=c.vf_coef,
+            ent_coef=c.ent_coef,
+            normalize_advantages=c.normalize_advantages,
+        )
+
+    # --- the update ----------------------------------------------------------------------------
+    def init(self, rng: jax.Array) -> TrainingState:
+        rng, rng_policy, rng_conditioner, rng_env = jax.random.split(rng, 4)
+        params = {**self.networks.init(rng_policy), "conditioner": self.conditioner.init(rng_conditioner)}
+        env_carry = jax.vmap(self.env.reset)(jax.random.split(rng_env, self.config.num_envs))
+        return TrainingState(
+            params=params,
+            opt_state=self.optimizer.init(params),
+            normalizer=init_return_normalizer(self.config.num_envs),
+            env=env_carry,
+            rng=rng,
+            env_steps=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+        )
+
+    def _minibatch_step(self, carry: tuple[Any, Any], batch: Minibatch):
+        params, opt_state = carry
+        (_, metrics), grads = jax.value_and_grad(self._loss, has_aux=True)(params, batch)
+        updates, opt_state = self.optimizer.update(grads, opt_state, params)
+        metrics["losses/grad_norm"] = optax.global_norm(grads)
+        return (optax.apply_updates(params, updates), opt_state), metrics
+
+    def _epoch(self, carry: tuple[Any, Any], inputs: tuple[jax.Array, Minibatch]):
+        rng, batch = inputs
+        order = jax.random.permutation(rng, self.sizes.batch_size)
+        shape = (self.sizes.num_minibatches, self.config.minibatch_size)
+        minibatches = jax.tree.map(lambda x: x[order].reshape(shape + x.shape[1:]), batch)
+        return jax.lax.scan(self._minibatch_step, carry, minibatches)
+
+    def update(self, state: TrainingState, _: Any = None) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """One PPO update: rollout, normalised rewards, GAE, ``num_epochs`` x minibatch SGD."""
+        c = self.config
+        rng, rng_unroll, rng_sgd = jax.random.split(state.rng, 3)
+        policy_step = functools.partial(self.policy_step, state.params)
+        env_carry, traj = generate_unroll(self.env, state.env, policy_step, rng_unroll, c.rollout_length)
+        _, _, bootstrap = policy_step(env_carry.state.obs, env_carry.instruction, rng)
+        normalizer, rewards = state.normalizer, traj.reward
+        if c.normalize_rewards:
+            normalizer, rewards = normalize_rollout_rewards(
+                normalizer, rewards, traj.episode_done, c.gamma, c.reward_clip
+            )
+        advantages, returns = compute_gae(
+            rewards, traj.value, bootstrap, traj.termination, traj.truncation, c.gamma, c.gae_lambda
+        )
+        batch = Minibatch(traj.obs, traj.instruction, traj.action, traj.log_prob, advantages, returns)
+        batch = jax.tree.map(lambda x: x.reshape((self.sizes.batch_size,) + x.shape[2:]), batch)
+        epoch_keys = jax.random.split(rng_sgd, c.num_epochs)
+        epoch_inputs = (epoch_keys, jax.tree.map(lambda x: jnp.broadcast_to(x, (c.num_epochs,) + x.shape), batch))
+        (params, opt_state), loss_metrics = jax.lax.scan(self._epoch, (state.params, state.opt_state), epoch_inputs)
+        done = traj.episode_done
+        metrics = {key: jnp.mean(value) for key, value in loss_metrics.items()}
+        metrics |= {
+            "train/episodes": jnp.sum(done),
+            "train/successes": jnp.sum(done * traj.success),
+            "train/return_sum": jnp.sum(traj.episode_return),
+            "train/reward_std": jnp.sqrt(normalizer.var),
+        }
+        new_state = TrainingState(
+            params=params,
+            opt_state=opt_state,
+            normalizer=normalizer,
+            env=env_carry,
+            rng=rng,
+            env_steps=state.env_steps + self.sizes.env_steps_per_update,
+            updates=state.updates + 1,
+        )
+        return new_state, metrics
+
+    def chunk(self, state: TrainingState) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """``updates_per_chunk`` updates under ``lax.scan``; metrics have a leading (updates_per_chunk,) axis."""
+        return jax.lax.scan(self.update, state, None, length=self.config.updates_per_chunk)
+
+    def evaluate(self, params: dict[str, Any], rng: jax.Array, split: str = "train") -> dict[str, jax.Array]:
+        """``eval_episodes`` fresh episodes with instructions from ``split`` (see ``evaluate_episodes``)."""
+        policy = self.make_policy(params, self.config.eval_deterministic)
+
+        def act(obs: jax.Array, instruction: jax.Array, rng_act: jax.Array) -> jax.Array:
+            cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+            return policy(obs, cond, rng_act)
+
+        return evaluate_episodes(self.eval_envs[check_split(split)], act, rng, self.config.eval_episodes)
+
+    def train(self, rng: jax.Array) -> tuple[TrainingState, dict[str, jax.Array]]:
+        """The whole run in one program (no host work): metrics (num_chunks, updates_per_chunk)."""
+        return jax.lax.scan(lambda state, _: self.chunk(state), self.init(rng), None, length=self.sizes.num_chunks)
+
+
+def make_train(config: PPOConfig, env: Any, conditioner: Conditioner) -> Trainer:
+    """Pure per-seed PPO functions for an (unwrapped) env and a conditioner; see ``Trainer``."""
+    learner = _Learner(config, env, conditioner)
+    return Trainer(learner.networks, learner.make_policy, learner.init, learner.chunk, learner.evaluate, learner.train)
+
+
+# ------------------------------------------------------------------------------------------------
+# Host loop
+# ------------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class PPOResult:
+    """What ``run_ppo`` returns. Arrays carry a leading (num_seeds,) axis."""
+
+    state: TrainingState
+    history: list[dict[str, Any]]
+    final_eval: dict[str, dict[str, Any]]
+    env_steps: int
+    wall_s: float
+    target_reached: dict[str, float] | None
+    trainer: Trainer
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return self.state.params
+
+
+def summarize_eval(record: dict[str, np.ndarray], num_goals: int) -> dict[str, Any]:
+    """Success over seeds and per goal; episodes whose goal has no instruction in the split are left out.
+
+    Args:
+        record: ``evaluate`` output with (num_seeds, E) arrays.
+        num_goals: number of goal ids.
+    """
+    valid = np.asarray(record["instruction"]) >= 0
+    success = np.asarray(record["success"], np.float64) * valid
+    goal = np.asarray(record["goal"])
+    counts = np.bincount(goal[valid], minlength=num_goals).astype(np.float64)
+    per_goal = np.bincount(goal[valid], weights=success[valid], minlength=num_goals) / np.maximum(counts, 1)
+    return {
+        "success": float(success.sum() / max(valid.sum(), 1)),
+        "success_per_seed": (success.sum(1) / np.maximum(valid.sum(1), 1)).tolist(),
+        "success_per_goal": [float(v) if n else None for v, n in zip(per_goal, counts, strict=True)],
+        "episode_return": float(np.mean(record["episode_return"])),
+        "episode_length": float(np.mean(record["episode_length"])),
+    }
+
+
+def _chunk_metrics(metrics: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Per-update metrics (num_seeds, updates_per_chunk) -> chunk means over seeds and updates."""
+    out = {key: float(np.mean(value)) for key, value in metrics.items() if key.startswith("losses/")}
+    episodes = float(np.sum(metrics["train/episodes"]))
+    out["train/episodes"] = episodes
+    out["train/success"] = float(np.sum(metrics["train/successes"]) / max(episodes, 1.0))
+    out["train/episode_return"] = float(np.sum(metrics["train/return_sum"]) / max(episodes, 1.0))
+    out["train/reward_std"] = float(np.mean(metrics["train/reward_std"]))
+    return out
+
+
+def run_ppo(
+    config: PPOConfig,
+    env: Any,
+    conditioner: Conditioner,
+    out_dir: str | Path | None = None,
+    *,
+    progress: bool = True,
+    logger: Logger | None = None,
+    eval_splits: Sequence[str] = SPLITS,
+    target_success: float | None = None,
+    stop_at_target: bool = False,
+) -> PPOResult:
+    """Trains ``config.num_seeds`` seeds in one compiled program, chunk by chunk, with host work between chunks.
+
+    Args:
+        config: PPO config.
+        env: the unwrapped env (time limit and auto-reset are added here).
+        conditioner: instruction sampler and conditioning vector.
+        out_dir: where ``config.json``, ``checkpoints/``, ``metrics.jsonl`` and ``progress.json`` go; a run
+            found there is resumed from its latest checkpoint (``None``: no checkpoints, no resume).
+        progress: show a tqdm bar.
+        logger: receives every chunk's metrics (in addition to ``metrics.jsonl``).
+        eval_splits: instruction splits to evaluate on.
+        target_success: record the env steps and wall-clock at which ``eval/train/success`` first reaches this.
+        stop_at_target: stop training once the target is reached.
+
+    Returns:
+        ``PPOResult``; ``history`` holds the metrics of the chunks run by this call.
+    """
+    for split in eval_splits:
+        check_split(split)
+    sizes = derive(config)
+    trainer = make_train(config, env, conditioner)
+    loggers: list[Logger] = [logger or NoOpLogger()]
+    seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
+    state = jax.jit(jax.vmap(trainer.init))(seed_keys)
+    checkpointer, progress_path, done = None, None, {"chunks": 0, "wall_s": 0.0, "target_reached": None}
+    if out_dir is not None:
+        checkpointer = Checkpointer(out_dir, config)
+        progress_path = Path(out_dir) / "progress.json"
+        loggers.append(JsonLinesLogger(Path(out_dir) / "metrics.jsonl"))
+        latest = checkpointer.latest_step()
+        if latest is not None:
+            state = checkpointer.restore(latest, state)
+            if progress_path.exists():
+                done = json.loads(progress_path.read_text())
+            done["chunks"] = latest
+    log = MultiLogger(*loggers)
+
+    compile_start = time.perf_counter()
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    eval_fns = {
+        split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))) for split in eval_splits
+    }
+    compile_s = time.perf_counter() - compile_start
+    eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
+
+    def evaluate(chunk_index: int) -> dict[str, dict[str, Any]]:
+        keys = jax.random.split(jax.random.fold_in(eval_root, chunk_index), config.num_seeds)
+        records = {split: jax.device_get(fn(state.params, keys)) for split, fn in eval_fns.items()}
+        return {split: summarize_eval(record, env.num_goals) for split, record in records.items()}
+
+    history: list[dict[str, Any]] = []
+    final_eval: dict[str, dict[str, Any]] = {}
+    wall_s = float(done["wall_s"])
+    stop = stop_at_target and done["target_reached"] is not None
+    bar = tqdm(total=sizes.num_chunks, initial=done["chunks"], disable=not progress, unit="chunk", desc="ppo")
+    for chunk_index in range(done["chunks"], sizes.num_chunks):
+        if stop:
+            break
+        start = time.perf_counter()
+        state, metrics = chunk_fn(state)
+        metrics = jax.device_get(metrics)
+        chunk_s = time.perf_counter() - start
+        wall_s += chunk_s
+        env_steps = (chunk_index + 1) * sizes.env_steps_per_chunk
+        row = {"train/env_steps": env_steps, "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
+               "train/chunk_s": chunk_s, "train/wall_s": wall_s, **_chunk_metrics(metrics)}  # fmt: skip
+        if chunk_index == done["chunks"]:
+            row["train/compile_s"] = compile_s
+        last = chunk_index == sizes.num_chunks - 1
+        if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
+            final_eval = evaluate(chunk_index)
+            for split, summary in final_eval.items():
+                row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
+            success = final_eval.get("train", next(iter(final_eval.values())))["success"]
+            if target_success is not None and done["target_reached"] is None and success >= target_success:
+                done["target_reached"] = {"env_steps": env_steps, "wall_s": wall_s, "success": success}
+                stop = stop_at_target
+        if checkpointer is not None:
+            checkpointer.save(chunk_index + 1, state)
+            write_json_atomic(progress_path, {"chunks": chunk_index + 1, "wall_s": wall_s,
+                                              "target_reached": done["target_reached"]})  # fmt: skip
+        history.append(row)
+        log.write(chunk_index + 1, row)
+        bar.update(1)
+        shown = ("eval/train/success", "train/success")
+        bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
+    bar.close()
+    if not final_eval and eval_splits:
+        final_eval = evaluate(sizes.num_chunks)
+    if checkpointer is not None:
+        checkpointer.close()
+    log.close()
+    return PPOResult(
+        state=state,
+        history=history,
+        final_eval=final_eval,
+        env_steps=int(np.max(jax.device_get(state.env_steps))),
+        wall_s=wall_s,
+        target_reached=done["target_reached"],
+        trainer=trainer,
+    )

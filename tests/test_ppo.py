@@ -1,0 +1,120 @@
+"""PPO on a tiny goal-conditioned point env: learning (discrete and continuous), seeds, determinism, resume, dataset."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler, InstructionTableConditioner
+from talar_jax.dataset import TaskDataset, collect_task_dataset
+from talar_jax.logging import ListLogger
+from talar_jax.ppo import PPOConfig, derive, make_train, run_ppo
+from tests.point_env import GOALS, SUCCESS_RADIUS, PointConfig, PointEnv
+
+CONFIG = PPOConfig(num_envs=16, rollout_length=32, total_env_steps=25_600, updates_per_chunk=10, num_seeds=2,
+                   eval_episodes=64, ent_coef=0.0)  # fmt: skip  # 5 chunks of 5120 steps
+TIMING_KEYS = ("train/sps", "train/chunk_s", "train/wall_s", "train/compile_s")
+
+
+def _comparable(row):
+    return {key: value for key, value in row.items() if key not in TIMING_KEYS}
+
+
+class _KillAfter(ListLogger):
+    """Raises (like a kill) after ``chunks`` chunks were logged; the checkpoint of the last one is on disk."""
+
+    def __init__(self, chunks):
+        super().__init__()
+        self.chunks = chunks
+
+    def write(self, step, metrics):
+        super().write(step, metrics)
+        if step >= self.chunks:
+            raise KeyboardInterrupt
+
+
+@pytest.fixture(scope="module")
+def discrete_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ppo") / "full"
+    return run_ppo(CONFIG, PointEnv(), GoalOneHotConditioner(4), out, progress=False, target_success=0.8), out
+
+
+def test_derive():
+    sizes = derive(CONFIG)
+    assert (sizes.batch_size, sizes.num_minibatches, sizes.num_chunks, sizes.total_env_steps) == (512, 4, 5, 25_600)
+    with pytest.raises(ValueError, match="multiple of minibatch_size"):
+        PPOConfig(num_envs=3, rollout_length=5, minibatch_size=4)
+    with pytest.raises(ValueError, match="num_epochs must be >= 1"):
+        dataclasses.replace(CONFIG, num_epochs=0)
+
+
+def test_discrete_learns_and_seeds_are_vmapped(discrete_run):
+    result, out = discrete_run
+    assert len(result.history) == 5 and result.env_steps == 25_600
+    per_seed = result.final_eval["train"]["success_per_seed"]
+    assert len(per_seed) == 2 and min(per_seed) >= 0.8, per_seed
+    assert result.final_eval["test"]["success"] >= 0.8
+    assert result.target_reached is not None and result.target_reached["env_steps"] <= 25_600
+    assert result.history[0]["eval/train/success"] < result.history[-1]["eval/train/success"]
+    leaves = jax.tree.leaves(result.params)
+    assert all(leaf.shape[0] == 2 for leaf in leaves)
+    assert any(not np.allclose(leaf[0], leaf[1]) for leaf in leaves)  # two seeds, two different runs
+    assert (out / "config.json").exists() and (out / "metrics.jsonl").read_text().count("\n") == 5
+
+
+def test_same_seed_same_metrics_and_resume(discrete_run, tmp_path):
+    result, _ = discrete_run
+    killed = _KillAfter(2)
+    with pytest.raises(KeyboardInterrupt):
+        run_ppo(CONFIG, PointEnv(), GoalOneHotConditioner(4), tmp_path, progress=False, logger=killed)
+    # Determinism: the first two chunks of a fresh run with the same seed match the uninterrupted run.
+    for (_, row), reference in zip(killed.records, result.history[:2], strict=True):
+        assert _comparable(row) == _comparable(reference)
+    resumed = run_ppo(CONFIG, PointEnv(), GoalOneHotConditioner(4), tmp_path, progress=False)
+    assert [row["train/env_steps"] for row in resumed.history] == [15_360, 20_480, 25_600]
+    for row, reference in zip(resumed.history, result.history[2:], strict=True):
+        assert _comparable(row) == _comparable(reference)
+    jax.tree.map(np.testing.assert_array_equal, resumed.params, result.params)
+    with pytest.raises(ValueError, match="different config"):
+        run_ppo(dataclasses.replace(CONFIG, learning_rate=1e-3), PointEnv(), GoalOneHotConditioner(4), tmp_path)
+
+
+def test_continuous_learns_with_trainable_conditioner():
+    # Instructions 0..7: goal g has train instructions {2g, 2g+1}; the table rows start as noisy one-hots and train.
+    table = np.repeat(np.eye(4, dtype=np.float32), 2, axis=0) + 0.1
+    lookup = np.arange(8, dtype=np.int32).reshape(4, 2)
+    conditioner = InstructionTableConditioner(table, {"train": (lookup, [2, 2, 2, 2])}, trainable=True)
+    config = dataclasses.replace(CONFIG, num_seeds=1, total_env_steps=20_480)
+    result = run_ppo(config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False,
+                     eval_splits=("train",))  # fmt: skip
+    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    assert not np.allclose(result.params["conditioner"]["table"][0], table)  # optimised jointly with the policy
+
+
+def test_collect_task_dataset(discrete_run, tmp_path):
+    result, _ = discrete_run
+    params = jax.tree.map(lambda leaf: leaf[0], result.params)
+    # Language: goal g has training instructions {10g, 10g+1}; goal 3 has none, so its episodes are skipped.
+    sampler = InstructionSampler({"train": ([[0, 1], [10, 11], [20, 21], [-1, -1]], [2, 2, 2, 0])})
+    dataset = collect_task_dataset(PointEnv(), params, GoalOneHotConditioner(4), 300, jax.random.PRNGKey(3),
+                                   instruction_sampler=sampler, num_envs=32, config={"env": "point"})  # fmt: skip
+    assert len(dataset) == 300 and dataset.states.shape == (300, 2) and dataset.actions.shape == (300,)
+    assert set(np.unique(dataset.goal_ids)) <= {0, 1, 2}
+    np.testing.assert_array_equal(dataset.instruction_ids // 10, dataset.goal_ids)
+    distance = np.linalg.norm(dataset.final_states - GOALS[dataset.goal_ids], axis=1)
+    assert np.all(distance < SUCCESS_RADIUS)  # s_T of every tuple shows its goal achieved
+    assert dataset.config["collection"]["goals_without_train_instructions"] == [3]
+    dataset.save(tmp_path)
+    loaded = TaskDataset.load(tmp_path)
+    np.testing.assert_array_equal(loaded.states, dataset.states)
+    assert loaded.config["env"] == "point"
+
+
+@pytest.mark.slow
+def test_whole_run_in_one_program():
+    config = dataclasses.replace(CONFIG, total_env_steps=10_240)
+    trainer = make_train(config, PointEnv(), GoalOneHotConditioner(4))
+    state, metrics = jax.jit(jax.vmap(trainer.train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    assert metrics["losses/value"].shape == (2, 2, 10)
+    assert int(state.env_steps[0]) == 10_240
