@@ -128,6 +128,33 @@ def wrap_for_training(env: Env | Wrapper, episode_length: int | None = None, act
     return AutoResetWrapper(EpisodeWrapper(env, episode_length, action_repeat))
 
 
+class BraxEpisodeMetricsWrapper(Wrapper):
+    """Adds the ``info["episode_metrics"]`` / ``info["episode_done"]`` that brax's PPO/SAC training loops read.
+
+    Sits outside ``AutoResetWrapper``: sums reward, length and every metric over the running episode, restarting
+    after a step with ``done`` (like brax's own ``EpisodeWrapper``), so values at a done step cover that episode.
+    """
+
+    def __init__(self, env: Env | Wrapper, action_repeat: int = 1):
+        super().__init__(env)
+        self.action_repeat = action_repeat
+
+    def reset(self, rng: jax.Array) -> State:
+        state = self.env.reset(rng)
+        zero = jnp.zeros((), jnp.float32)
+        episode_metrics = {"sum_reward": zero, "length": zero, **{key: zero for key in state.metrics}}
+        return state.replace(info={**state.info, "episode_metrics": episode_metrics, "episode_done": zero})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        stepped = self.env.step(state, action)
+        keep = 1.0 - state.info["episode_done"]
+        previous = state.info["episode_metrics"]
+        current = {"sum_reward": stepped.reward, "length": jnp.float32(self.action_repeat), **stepped.metrics}
+        episode_metrics = {key: previous[key] * keep + current[key] for key in previous}
+        info = {**stepped.info, "episode_metrics": episode_metrics, "episode_done": stepped.done}
+        return stepped.replace(info=info)
+
+
 def wrap_for_brax_training(
     env: Env | Wrapper,
     episode_length: int | None = None,
@@ -137,4 +164,5 @@ def wrap_for_brax_training(
     """Pass as ``brax.training.agents.ppo.train(..., wrap_env_fn=wrap_for_brax_training)``."""
     if randomization_fn is not None:
         raise NotImplementedError("domain randomisation is not supported by talar-jax envs")
-    return VmapWrapper(wrap_for_training(env, episode_length, action_repeat))
+    wrapped = BraxEpisodeMetricsWrapper(wrap_for_training(env, episode_length, action_repeat), action_repeat)
+    return VmapWrapper(wrapped)
