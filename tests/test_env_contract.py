@@ -1,0 +1,144 @@
+"""Env contract for every registered env (``envs.ALL_ENVS``): shapes, finiteness, no retracing, determinism,
+MJX-vs-C agreement and clear errors. Sizes are read from each env, so new envs are covered by registering them."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+
+NUM_ENVS, NUM_STEPS = 8, 120  # the long random rollout (C backend, time limits and auto-resets included)
+AGREE_STEPS, AGREE_ATOL = 4, 5e-3  # MJX (float32) vs MuJoCo C (float64): same reset key and actions, |obs diff| max
+
+
+def random_actions(spec: envs.ActionSpec, key: jax.Array, shape: tuple[int, ...]) -> jax.Array:
+    """Uniform random actions of ``spec`` with leading ``shape``."""
+    if spec.kind == "discrete":
+        return jax.random.randint(key, shape, 0, spec.size)
+    return jax.random.uniform(key, shape + (spec.size,), minval=spec.low, maxval=spec.high)
+
+
+class Compiled:
+    """An env on both backends and its jitted functions, built once per env name (module scope)."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.c_env = envs.make(name, physics="c")
+        self.mjx_env = envs.make(name, physics="mjx")
+        self.step_traces = 0
+        self.reset = jax.jit(self.c_env.reset)
+
+        def counted_step(state, action):
+            self.step_traces += 1  # runs only while tracing
+            return self.c_env.step(state, action)
+
+        self.step = jax.jit(counted_step)
+        self.rollout = jax.jit(self._training_rollout)
+        self.c_short = jax.jit(lambda key: self._short_rollout(self.c_env, key))
+        self.mjx_short = jax.jit(lambda key: self._short_rollout(self.mjx_env, key))
+
+    def _training_rollout(self, key):
+        env = envs.wrap_for_training(self.c_env)
+        key_reset, key_actions = jax.random.split(key)
+        state = jax.vmap(env.reset)(jax.random.split(key_reset, NUM_ENVS))
+        actions = random_actions(env.action_spec, key_actions, (NUM_STEPS, NUM_ENVS))
+
+        def body(state, action):
+            state = jax.vmap(env.step)(state, action)
+            return state, (state.obs, state.reward, state.done, state.info["steps"], state.metrics["success"])
+
+        return jax.lax.scan(body, state, actions)[1]
+
+    def _short_rollout(self, env, key):
+        key_reset, key_actions = jax.random.split(key)
+        state = env.reset(key_reset)
+
+        def body(state, action):
+            state = env.step(state, action)
+            return state, state.obs
+
+        return jax.lax.scan(body, state, random_actions(env.action_spec, key_actions, (AGREE_STEPS,)))[1]
+
+
+@pytest.fixture(scope="module", params=envs.ALL_ENVS)
+def compiled(request) -> Compiled:
+    return Compiled(request.param)
+
+
+def test_registry_lists_envs():
+    assert "clevr" in envs.ALL_ENVS and "clevr-arrangement" in envs.ALL_ENVS
+    assert envs.registered_names() == envs.ALL_ENVS
+
+
+def test_jitted_reset_and_step_shapes(compiled):
+    env = compiled.c_env
+    state = compiled.reset(jax.random.key(0))
+    assert state.obs.shape == (env.observation_size,)
+    assert env.action_size == env.action_spec.size >= 1 and env.num_goals >= 1 and env.episode_length >= 1
+    action = random_actions(env.action_spec, jax.random.key(1), ())
+    stepped = compiled.step(state, action)
+    assert stepped.obs.shape == (env.observation_size,) and stepped.obs.dtype == jnp.float32
+    assert stepped.reward.shape == () and stepped.done.shape == ()
+    assert "success" in stepped.metrics and set(stepped.metrics) == set(state.metrics)
+    assert jax.tree.structure(stepped.task) == jax.tree.structure(state.task) and state.task is not None
+    assert not np.array_equal(stepped.obs, state.obs)  # the action did something
+
+
+def test_no_retracing(compiled):
+    env = compiled.c_env
+    state = compiled.reset(jax.random.key(2))
+    for i in range(3):
+        state = compiled.step(state, random_actions(env.action_spec, jax.random.key(10 + i), ()))
+    state = compiled.step(compiled.reset(jax.random.key(3)), random_actions(env.action_spec, jax.random.key(4), ()))
+    jax.block_until_ready(state)
+    assert compiled.step_traces == 1
+
+
+def test_long_random_rollout_is_finite_and_resets(compiled):
+    obs, reward, done, steps, success = compiled.rollout(jax.random.key(5))
+    env = compiled.c_env
+    assert obs.shape == (NUM_STEPS, NUM_ENVS, env.observation_size)
+    assert np.isfinite(obs).all() and np.isfinite(reward).all()
+    assert set(np.unique(done)) <= {0.0, 1.0} and set(np.unique(success)) <= {0.0, 1.0}
+    assert steps.max() <= env.episode_length
+    if env.episode_length < NUM_STEPS:  # time limits end episodes and auto-reset starts new ones
+        assert done.sum() >= NUM_ENVS
+
+
+def test_determinism_for_a_seed(compiled):
+    first = compiled.rollout(jax.random.key(6))
+    again = compiled.rollout(jax.random.key(6))
+    other = compiled.rollout(jax.random.key(7))
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(first[0], other[0])
+
+
+def test_backends_agree_on_a_short_rollout(compiled):
+    c_obs = np.asarray(compiled.c_short(jax.random.key(8)))
+    mjx_obs = np.asarray(compiled.mjx_short(jax.random.key(8)))
+    assert np.isfinite(mjx_obs).all()
+    np.testing.assert_allclose(mjx_obs, c_obs, atol=AGREE_ATOL, rtol=0)
+
+
+def test_clear_errors(compiled):
+    name, env = compiled.name, compiled.c_env
+    with pytest.raises(ValueError, match="registered environments: .*clevr"):
+        envs.make(name + "-nope")
+    with pytest.raises(ValueError, match="valid options: .*episode_length"):
+        envs.make(name, not_an_option=1)
+    with pytest.raises(TypeError, match="episode_length"):
+        envs.make(name, episode_length="long")
+    with pytest.raises(ValueError, match="choose one of mjx, c"):
+        envs.make(name, physics="gpu")
+    state = compiled.reset(jax.random.key(0))
+    spec = env.action_spec
+    if spec.kind == "discrete":
+        with pytest.raises(ValueError, match=f"valid actions are 0..{spec.size - 1}"):
+            env.step(state, jnp.int32(spec.size))
+        with pytest.raises(ValueError, match="scalar int"):
+            env.step(state, jnp.zeros(spec.size + 1))
+    else:
+        with pytest.raises(ValueError, match=f"shape \\({spec.size},\\)"):
+            env.step(state, jnp.zeros(spec.size + 1))
