@@ -31,9 +31,9 @@ from talar_jax.language.encoder import BertEncoder, load_encoder
 from talar_jax.language.instructions import canonical_env, goal_lookup, load_instructions
 
 CACHE_ENV_VAR = "TALAR_JAX_CACHE"
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 _ARRAY_FIELDS = (
-    "goal_ids", "is_train", "sentence_embeddings", "token_ids", "token_lengths", "prefix_embeddings",
+    "goal_ids", "is_train", "sentence_embeddings", "token_ids", "token_lengths",
     "prefix_sentence", "prefix_next_token", "prefix_next_token_compact", "token_vocab", "sentence_prefix_start",
     "sentence_prefix_count",
 )  # fmt: skip
@@ -204,6 +204,10 @@ def _save(cache: EmbeddingCache, path: Path) -> None:
         "num_goals": cache.num_goals,
     }  # fmt: skip
     arrays = {name: getattr(cache, name) for name in _ARRAY_FIELDS}
+    # many sentences share prefixes (CLEVR: 18.6k prefixes, 4.6k distinct): store each distinct embedding once
+    arrays["prefix_distinct_embeddings"], arrays["prefix_distinct_index"] = np.unique(
+        cache.prefix_embeddings, axis=0, return_inverse=True
+    )
     with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False) as handle:
         temporary = Path(handle.name)
         try:
@@ -225,11 +229,15 @@ def _load(path: Path, key: str) -> EmbeddingCache | None:
         with np.load(path, allow_pickle=False) as stored:
             meta = json.loads(str(stored["meta"]))
             arrays = {name: stored[name] for name in _ARRAY_FIELDS}
+            arrays["prefix_embeddings"] = stored["prefix_distinct_embeddings"][stored["prefix_distinct_index"]]
             sentences = tuple(str(s) for s in stored["sentences"])
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
         warnings.warn(f"ignoring unreadable language cache {path} ({error}); rebuilding", stacklevel=3)
         return None
     if meta.get("format") != CACHE_FORMAT or meta.get("key") != key:
+        return None
+    if arrays["prefix_embeddings"].shape != (len(arrays["prefix_sentence"]), meta["embedding_dim"]):
+        warnings.warn(f"ignoring inconsistent language cache {path}; rebuilding", stacklevel=3)
         return None
     goal_sentences, goal_counts = goal_lookup(arrays["goal_ids"], meta["num_goals"])
     return EmbeddingCache(

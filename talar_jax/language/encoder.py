@@ -99,7 +99,10 @@ class BertEncoder:
         """
         folder = Path(folder)
         if not folder.is_dir():
-            raise EncoderError(f"encoder folder {folder} does not exist")
+            raise EncoderError(
+                f"encoder folder {folder} does not exist; give a Hugging Face BERT folder (config.json, "
+                "model.safetensors, tokenizer.json or vocab.txt) or None for the default all-MiniLM-L6-v2"
+            )
         config_file, weights_file = folder / "config.json", folder / WEIGHTS_FILE
         if not config_file.is_file():
             raise EncoderError(f"{folder} has no config.json: not a Hugging Face BERT folder")
