@@ -98,8 +98,8 @@ def test_lean_matches_original_in_collisions(original, lean, name, red, blue, ac
     scene = _scene(red, blue)
     reference = _run(original, scene, [action, action, PARK])
     result = _run(lean, scene, [action, action, PARK])
-    # two pushes and a coasting step: every ball within 5 cm of the original (a push is ~25 cm, a radius 13 cm)
-    assert np.abs(result - reference).max() < 0.05, (name, result[-1], reference[-1])
+    # two pushes and a coasting step: every ball within 6.5 cm of the original (a push is ~25 cm, a radius 13 cm)
+    assert np.abs(result - reference).max() < 0.065, (name, result[-1], reference[-1])
     if blue is not None:  # the push is transferred: the hit ball moves a lot in both models
         assert np.linalg.norm(reference[1, 1] - scene[1]) > 0.08
         assert np.linalg.norm(result[1, 1] - scene[1]) > 0.08

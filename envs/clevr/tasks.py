@@ -161,40 +161,43 @@ def arrangement_satisfied(ball_xy: jax.Array) -> jax.Array:
     return relation_holds(ball_xy[c[:, 0]], ball_xy[c[:, 1]], c[:, 2])
 
 
-def _place_balls_sequentially(rng: jax.Array, num_candidates: int) -> tuple[jax.Array, jax.Array]:
-    """One attempt: each ball takes the first of ``num_candidates`` uniform draws far enough from those placed.
+def _place_balls_sequentially(rng: jax.Array, pool_size: int) -> tuple[jax.Array, jax.Array]:
+    """One attempt of sequential rejection sampling from a stream of ``pool_size`` uniform points.
+
+    Ball i takes the first point of the stream at >= 0.36 from every ball placed before it (the original's
+    per-ball rejection sampling, with a finite stream instead of retries).
 
     Returns:
-        ((5, 2) float32 centres, () bool whether every ball found a free spot).
+        ((5, 2) float32 centres, () bool whether every ball found a point).
     """
     low, high = jnp.asarray(REGION_LOW), jnp.asarray(REGION_HIGH)
-    candidates = jax.random.uniform(rng, (NUM_BALLS, num_candidates, 2), minval=low, maxval=high)
-
-    def place(carry, ball):
-        placed, ok = carry
-        gaps = jnp.linalg.norm(candidates[ball][:, None, :] - placed[None, :, :], axis=-1)  # (K, 5)
-        free = jnp.all((gaps >= MIN_SEPARATION) | (jnp.arange(NUM_BALLS) >= ball)[None, :], axis=1)
+    bits = jax.random.bits(rng, (pool_size,), jnp.uint32)  # one 32-bit word -> two 16-bit coordinates (RNG is the cost)
+    unit = jnp.stack([bits & 0xFFFF, bits >> 16], axis=-1).astype(jnp.float32) / 65536.0
+    pool = low + (high - low) * unit
+    free = jnp.ones(pool_size, bool)
+    placed, ok = [], jnp.bool_(True)
+    for _ in range(NUM_BALLS):  # unrolled: 5 small vector steps
         choice = jnp.argmax(free)
-        return (placed.at[ball].set(candidates[ball, choice]), ok & free[choice]), None
+        ok = ok & free[choice]
+        placed.append(pool[choice])
+        free = free & (jnp.linalg.norm(pool - pool[choice], axis=-1) >= MIN_SEPARATION)
+    return jnp.stack(placed), ok
 
-    start = jnp.zeros((NUM_BALLS, 2), jnp.float32)
-    (placed, ok), _ = jax.lax.scan(place, (start, jnp.bool_(True)), jnp.arange(NUM_BALLS))
-    return placed, ok
 
-
-def sample_ball_positions(rng: jax.Array, num_attempts: int = 16, num_candidates: int = 16) -> jax.Array:
+def sample_ball_positions(rng: jax.Array, num_attempts: int = 8, pool_size: int = 64) -> jax.Array:
     """Balls uniform in the reachable region with centre distances >= 0.36, in fixed shapes.
 
-    Like the original's sampler (per-ball retries, whole-scene restarts): ``num_attempts`` independent
-    sequential attempts run side by side and the first complete one is kept (one attempt jams ~1/3 of the
-    time, so all 16 fail with probability ~1e-7); then a fixed valid layout (shuffled) is the fallback.
+    Like the original's sampler (per-ball rejection, whole-scene restarts when stuck): ``num_attempts``
+    independent sequential attempts over streams of ``pool_size`` points run side by side and the first complete
+    one is kept (one attempt jams 27% of the time, so all 8 fail with probability ~3e-5); then a fixed valid layout
+    (shuffled) is the fallback.
 
     Returns:
         (5, 2) float32 ball centres.
     """
     rng_attempts, rng_fallback = jax.random.split(rng)
     attempts = jax.random.split(rng_attempts, num_attempts)
-    scenes, complete = jax.vmap(_place_balls_sequentially, in_axes=(0, None))(attempts, num_candidates)
+    scenes, complete = jax.vmap(_place_balls_sequentially, in_axes=(0, None))(attempts, pool_size)
     grid = jnp.array([[-0.4, -0.1], [0.0, -0.1], [0.4, -0.1], [-0.2, 0.45], [0.2, 0.45]], jnp.float32)
     fallback = grid[jax.random.permutation(rng_fallback, NUM_BALLS)]
     return jnp.where(jnp.any(complete), scenes[jnp.argmax(complete)], fallback)
@@ -205,5 +208,6 @@ def sample_goal(rng: jax.Array, ball_xy: jax.Array) -> jax.Array:
 
     At least 60 goals are always unmet (each ordered pair satisfies at most one of its 4 relations).
     """
-    logits = jnp.where(all_goals_success(ball_xy), -jnp.inf, 0.0)
-    return jax.random.categorical(rng, logits).astype(jnp.int32)
+    unmet = ~all_goals_success(ball_xy)
+    pick = jax.random.randint(rng, (), 0, jnp.sum(unmet))  # the pick-th unmet goal: one random number, not 80
+    return jnp.argmax(jnp.cumsum(unmet) > pick).astype(jnp.int32)
