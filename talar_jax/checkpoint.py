@@ -24,6 +24,7 @@ def write_json_atomic(path: str | Path, payload: Any) -> None:
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     with os.fdopen(handle, "w") as file:
         json.dump(payload, file, indent=2, sort_keys=True)
+    os.chmod(temporary, 0o644)
     os.replace(temporary, path)
 
 

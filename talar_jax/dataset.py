@@ -62,6 +62,7 @@ class TaskDataset:
         handle, temporary = tempfile.mkstemp(dir=directory, prefix=".task_dataset.", suffix=".npz")
         with os.fdopen(handle, "wb") as file:
             np.savez(file, **{name: getattr(self, name) for name in _ARRAYS})
+        os.chmod(temporary, 0o644)
         os.replace(temporary, path)
         write_json_atomic(directory / "task_dataset.json", {"num_tuples": len(self), **self.config})
         return path

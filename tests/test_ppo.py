@@ -118,3 +118,19 @@ def test_whole_run_in_one_program():
     state, metrics = jax.jit(jax.vmap(trainer.train))(jax.random.split(jax.random.PRNGKey(0), 2))
     assert metrics["losses/value"].shape == (2, 2, 10)
     assert int(state.env_steps[0]) == 10_240
+
+
+@pytest.mark.slow
+def test_oracle_command_quick(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "oracle"
+    command = [sys.executable, "-m", "experiments.oracle", "--env", "clevr", "--out", str(out), "--quick",
+               "--no-progress", "--num-tuples", "200"]  # fmt: skip
+    subprocess.run(command, check=True, timeout=600, capture_output=True)
+    summary = json.loads((out / "oracle.json").read_text())
+    assert len(summary["eval"]["train"]["success_per_goal"]) == 80
+    dataset = TaskDataset.load(out / "dataset")
+    assert len(dataset) == 200 and dataset.states.shape == (200, 10)

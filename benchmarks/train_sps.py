@@ -1,0 +1,136 @@
+"""Training throughput (env steps/s of the whole PPO loop: acting + learning) of talar-jax PPO vs an SB3 reference.
+
+``python -m benchmarks.train_sps [--envs clevr kitchen] [--physics c mjx]``
+
+talar-jax: ``make_train`` chunk (jit + vmap, ``num_envs`` envs), timed after compilation. Reference: the
+original pipeline's style, stable-baselines3 PPO with 2 envs (DummyVecEnv, n_steps 512, minibatch 128,
+10 epochs, [32, 64, 64] tanh, VecNormalize on rewards) on a gymnasium adapter of the same env with C physics
+(jitted single-env reset/step; observation = [obs, goal one-hot]). Needs the ``benchmark`` extra
+(``pip install torch==2.13.0`` first, then ``pip install stable-baselines3 gymnasium``).
+Prints a table and writes ``benchmarks/results/train_sps.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import envs
+from envs.wrappers import EpisodeWrapper
+from talar_jax.conditioning import GoalOneHotConditioner
+from talar_jax.ppo import PPOConfig, derive, make_train
+
+RESULTS = Path(__file__).parent / "results" / "train_sps.json"
+
+
+def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: int, chunks: int) -> dict:
+    """Env steps/s of jitted PPO chunks (acting + learning), compile time apart."""
+    env = envs.make(env_name, physics=physics)
+    config = PPOConfig(num_envs=num_envs, rollout_length=64, updates_per_chunk=updates_per_chunk)
+    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    state = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), 1))
+    start = time.perf_counter()
+    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    compile_s = time.perf_counter() - start
+    state, _ = chunk(state)  # warm-up
+    jax.block_until_ready(state)
+    start = time.perf_counter()
+    for _ in range(chunks):
+        state, _ = chunk(state)
+    jax.block_until_ready(state)
+    seconds = time.perf_counter() - start
+    steps = chunks * derive(config).env_steps_per_chunk
+    return {"impl": "talar-jax", "env": env_name, "physics": physics, "num_envs": num_envs, "env_steps": steps,
+            "seconds": seconds, "sps": steps / seconds, "compile_s": compile_s}  # fmt: skip
+
+
+def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
+    """Env steps/s of SB3 PPO with 2 envs on a gymnasium adapter of the same env (C physics)."""
+    import gymnasium
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    torch.set_num_threads(1)
+    base = EpisodeWrapper(envs.make(env_name, physics="c"))
+    reset_fn, step_fn = jax.jit(base.reset), jax.jit(base.step)
+    spec, num_goals = base.action_spec, base.num_goals
+
+    class Adapter(gymnasium.Env):
+        def __init__(self, seed: int):
+            size = base.observation_size + num_goals
+            self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
+            if spec.kind == "discrete":
+                self.action_space = gymnasium.spaces.Discrete(spec.size)
+            else:
+                self.action_space = gymnasium.spaces.Box(spec.low, spec.high, (spec.size,), np.float32)
+            self.key = jax.random.PRNGKey(seed)
+            self.state = None
+
+        def _obs(self):
+            one_hot = np.eye(num_goals, dtype=np.float32)[int(self.state.task.goal)]
+            return np.concatenate([np.asarray(self.state.obs, np.float32), one_hot])
+
+        def reset(self, *, seed=None, options=None):
+            self.key, key = jax.random.split(self.key)
+            self.state = reset_fn(key)
+            return self._obs(), {}
+
+        def step(self, action):
+            action = jnp.asarray(action, jnp.int32 if spec.kind == "discrete" else jnp.float32)
+            self.state = step_fn(self.state, action)
+            truncated = bool(self.state.info["truncation"] > 0.5)
+            terminated = bool(self.state.done > 0.5) and not truncated
+            return self._obs(), float(self.state.reward), terminated, truncated, {}
+
+    vec = VecNormalize(DummyVecEnv([lambda i=i: Adapter(i) for i in range(2)]), norm_obs=False, norm_reward=True)
+    policy_kwargs = {"net_arch": {"pi": [32, 64, 64], "vf": [32, 64, 64]}, "activation_fn": torch.nn.Tanh}
+    model = PPO("MlpPolicy", vec, n_steps=512, batch_size=128, n_epochs=10, learning_rate=3e-4,
+                policy_kwargs=policy_kwargs, device="cpu", seed=0)  # fmt: skip
+    model.learn(total_timesteps=1024)  # warm-up: jit of the adapter, torch initialisation
+    start = time.perf_counter()
+    model.learn(total_timesteps=total_steps, reset_num_timesteps=False)
+    seconds = time.perf_counter() - start
+    return {"impl": "sb3 (2 envs)", "env": env_name, "physics": "c", "num_envs": 2, "env_steps": total_steps,
+            "seconds": seconds, "sps": total_steps / seconds, "compile_s": 0.0}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"])
+    parser.add_argument("--physics", nargs="+", default=["c", "mjx"])
+    parser.add_argument("--num-envs", type=int, default=64)
+    parser.add_argument("--updates-per-chunk", type=int, default=2)
+    parser.add_argument("--chunks", type=int, default=2)
+    parser.add_argument("--sb3-steps", type=int, default=2048)
+    parser.add_argument("--no-sb3", action="store_true", help="skip the reference (no benchmark extra installed)")
+    args = parser.parse_args()
+    rows = []
+    for env_name in args.envs:
+        reference = None if args.no_sb3 else sb3_reference_sps(env_name, args.sb3_steps)
+        if reference is not None:
+            rows.append({**reference, "ratio": 1.0})
+        for physics in args.physics:
+            row = jax_ppo_sps(env_name, physics, args.num_envs, args.updates_per_chunk, args.chunks)
+            row["ratio"] = row["sps"] / reference["sps"] if reference else None
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    print(f"\n{'impl':<14}{'env':<9}{'physics':<8}{'envs':>5}{'steps':>8}{'sps':>10}{'compile s':>11}{'x ref':>7}")
+    for r in rows:
+        ratio = f"{r['ratio']:.1f}" if r["ratio"] is not None else "-"
+        print(f"{r['impl']:<14}{r['env']:<9}{r['physics']:<8}{r['num_envs']:>5}{r['env_steps']:>8}{r['sps']:>10.0f}"
+              f"{r['compile_s']:>11.1f}{ratio:>7}")  # fmt: skip
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+    RESULTS.write_text(json.dumps({"machine": machine, "args": vars(args), "rows": rows}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
