@@ -31,6 +31,7 @@ from talar_jax.conditioning import SPLITS, Conditioner, check_split
 from talar_jax.logging import JsonLinesLogger, Logger, MultiLogger, NoOpLogger
 from talar_jax.losses import compute_gae, compute_ppo_loss, init_return_normalizer, normalize_rollout_rewards
 from talar_jax.networks import PPONetworks, make_inference_fn, make_ppo_networks
+from talar_jax.sharding import shard_seeds
 from talar_jax.types import TrainingState
 
 
@@ -349,6 +350,7 @@ def run_ppo(
     eval_splits: Sequence[str] = SPLITS,
     target_success: float | None = None,
     stop_at_target: bool = False,
+    initial_conditioner_params: Any = None,
 ) -> PPOResult:
     """Trains ``config.num_seeds`` seeds in one compiled program, chunk by chunk, with host work between chunks.
 
@@ -363,6 +365,8 @@ def run_ppo(
         eval_splits: instruction splits to evaluate on.
         target_success: record the env steps and wall-clock at which ``eval/train/success`` first reaches this.
         stop_at_target: stop training once the target is reached.
+        initial_conditioner_params: seed-stacked ``params["conditioner"]`` replacing ``conditioner.init``'s (same
+            structure), e.g. one frozen instruction table per seed.
 
     Returns:
         ``PPOResult``; ``history`` holds the metrics of the chunks run by this call.
@@ -374,6 +378,12 @@ def run_ppo(
     loggers: list[Logger] = [logger or NoOpLogger()]
     seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
     state = jax.jit(jax.vmap(trainer.init))(seed_keys)
+    if initial_conditioner_params is not None:
+        expected = jax.tree.structure(state.params["conditioner"])
+        if jax.tree.structure(initial_conditioner_params) != expected:
+            raise ValueError(f"initial_conditioner_params must have the structure {expected}")
+        state = state.replace(params={**state.params, "conditioner": initial_conditioner_params})
+    state = shard_seeds(state, config.num_seeds)
     checkpointer, progress_path, done = None, None, {"chunks": 0, "wall_s": 0.0, "target_reached": None}
     if out_dir is not None:
         checkpointer = Checkpointer(out_dir, config)
