@@ -1,0 +1,25 @@
+"""TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import tyro
+
+from experiments.pipeline import ExperimentConfig, run
+from talar_jax.ppo import PPOConfig
+
+DEFAULT = ExperimentConfig(
+    env="clevr",
+    out=Path("runs/clevr"),
+    ifp=dataclasses.replace(PPOConfig(), total_env_steps=2_000_000),
+)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    return run(tyro.cli(ExperimentConfig, default=DEFAULT, args=argv, description=__doc__))
+
+
+if __name__ == "__main__":
+    main()
