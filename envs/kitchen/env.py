@@ -162,6 +162,11 @@ class KitchenEnv(Env):
         """(nq,) reset joint positions of the simulated model."""
         return self._init_qpos.copy()
 
+    @property
+    def observation_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos indices, observation indices): ``obs[obs_indices] = qpos[qpos_indices]`` for simulated joints."""
+        return self._qpos_index.copy(), self._obs_index.copy()
+
     # --- observation ----------------------------------------------------------------------------
     def clean_observation(self, qpos: jax.Array) -> jax.Array:
         """The noise-free 30-D observation of a (nq,) qpos (indicators derived, hinge doors static)."""
