@@ -117,16 +117,22 @@ def main() -> None:
         reference = None if args.no_sb3 else sb3_reference_sps(env_name, args.sb3_steps)
         if reference is not None:
             rows.append({**reference, "ratio": 1.0})
+            print(json.dumps(reference), flush=True)
         for physics in args.physics:
             row = jax_ppo_sps(env_name, physics, args.num_envs, args.updates_per_chunk, args.chunks)
             row["ratio"] = row["sps"] / reference["sps"] if reference else None
             rows.append(row)
             print(json.dumps(row), flush=True)
+            _write(args, rows)  # after every row: a slow case (MJX kitchen compile on CPU) keeps the others
     print(f"\n{'impl':<14}{'env':<9}{'physics':<8}{'envs':>5}{'steps':>8}{'sps':>10}{'compile s':>11}{'x ref':>7}")
     for r in rows:
         ratio = f"{r['ratio']:.1f}" if r["ratio"] is not None else "-"
         print(f"{r['impl']:<14}{r['env']:<9}{r['physics']:<8}{r['num_envs']:>5}{r['env_steps']:>8}{r['sps']:>10.0f}"
               f"{r['compile_s']:>11.1f}{ratio:>7}")  # fmt: skip
+    _write(args, rows)
+
+
+def _write(args: argparse.Namespace, rows: list[dict]) -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
     RESULTS.write_text(json.dumps({"machine": machine, "args": vars(args), "rows": rows}, indent=2))

@@ -57,6 +57,10 @@ class OracleArgs:
     """Parallel training envs."""
     rollout_length: int = 64
     """Steps per env per PPO update."""
+    eval_episodes: int = 320
+    """Evaluation episodes per instruction split."""
+    eval_every_chunks: int = 2
+    """Evaluate every this many chunks of 8 updates."""
     collect_envs: int = 512
     """Parallel envs while collecting the dataset."""
     progress: bool = True
@@ -71,7 +75,8 @@ def oracle_ppo_config(args: OracleArgs) -> PPOConfig:
         return PPOConfig(num_envs=16, rollout_length=32, total_env_steps=total if args.total_env_steps else 10_240,
                          updates_per_chunk=5, eval_episodes=32, seed=args.seed)  # fmt: skip
     return PPOConfig(num_envs=args.num_envs, rollout_length=args.rollout_length, total_env_steps=total,
-                     updates_per_chunk=8, eval_every_chunks=2, eval_episodes=320, seed=args.seed)  # fmt: skip
+                     updates_per_chunk=8, eval_every_chunks=args.eval_every_chunks,
+                     eval_episodes=args.eval_episodes, seed=args.seed)  # fmt: skip
 
 
 def run(args: OracleArgs) -> float:
