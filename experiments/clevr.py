@@ -13,7 +13,7 @@ from talar_jax.ppo import PPOConfig
 DEFAULT = ExperimentConfig(
     env="clevr",
     out=Path("runs/clevr"),
-    ifp=dataclasses.replace(PPOConfig(), total_env_steps=2_000_000),
+    ifp=dataclasses.replace(PPOConfig(), eval_every_chunks=2, eval_episodes=80, total_env_steps=2_000_000),
 )
 
 

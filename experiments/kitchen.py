@@ -13,7 +13,7 @@ from talar_jax.ppo import PPOConfig
 DEFAULT = ExperimentConfig(
     env="kitchen",
     out=Path("runs/kitchen"),
-    ifp=dataclasses.replace(PPOConfig(), total_env_steps=4_000_000),
+    ifp=dataclasses.replace(PPOConfig(), eval_every_chunks=2, eval_episodes=80, total_env_steps=4_000_000),
 )
 
 

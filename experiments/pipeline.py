@@ -11,38 +11,24 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-import zlib
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-from flax import serialization
 
 import envs
+from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSetup
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
 from talar_jax.checkpoint import write_json_atomic
-from talar_jax.conditioning import InstructionTableConditioner
+from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import EmbeddingCache, build_cache
 from talar_jax.logging import TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
 from talar_jax.report import LearningCurve, plot_learning_curves, plot_tsne, results_table
-from talar_jax.sharding import shard_seeds
-from talar_jax.stages import StageResult, run_stage, stable_hash
-from talar_jax.talar import (
-    TalarConfig,
-    make_generate_task_language,
-    make_task_language_data,
-    make_train_task_language,
-    make_train_translator,
-    make_translate,
-    task_language_quality,
-)
-
-METHODS: tuple[str, ...] = ("talar",)
+from talar_jax.stages import StageResult, run_stage, stable_hash, to_jsonable
+from talar_jax.talar import TalarConfig, make_task_language_data
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +40,8 @@ class ExperimentConfig:
     seeds: int = 5
     """Independent seeds of the referential game, translator and IFP (vmapped in one program)."""
     method: str = "talar"
-    """Instruction encoding fed to the policy."""
+    """Instruction encoding fed to the policy: talar, onehot, bert-binary, bert-continuous, pretrained-bert-binary,
+    pretrained-bert-continuous, gla, handcrafted."""
     out: Path = Path("runs/clevr")
     """Output folder (a run found there is resumed; finished stages with unchanged inputs are reused)."""
     physics: str | None = None
@@ -114,16 +101,6 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
 # ------------------------------------------------------------------------------------------------
 # Stages
 # ------------------------------------------------------------------------------------------------
-def _save_tree(path: Path, tree: Any) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_bytes(serialization.msgpack_serialize(jax.device_get(tree)))
-    tmp.replace(path)
-
-
-def _load_tree(path: Path) -> Any:
-    return serialization.msgpack_restore(path.read_bytes())
-
-
 def _oracle_args(config: ExperimentConfig, out: Path) -> OracleArgs:
     return OracleArgs(env=config.env, out=out, physics=config.physics, seed=config.seed, quick=config.quick,
                       total_env_steps=config.oracle_env_steps, num_tuples=config.num_tuples,
@@ -131,7 +108,7 @@ def _oracle_args(config: ExperimentConfig, out: Path) -> OracleArgs:
 
 
 def stage_oracle(config: ExperimentConfig) -> StageResult:
-    """Goal-conditioned oracle and the task dataset (``experiments.oracle``)."""
+    """Goal-conditioned oracle and the task dataset (``experiments.oracle``), shared by every method."""
     key = stable_hash("oracle", dataclasses.replace(_oracle_args(config, Path()), progress=True))
 
     def body(stage_dir: Path) -> dict[str, Any]:
@@ -141,146 +118,82 @@ def stage_oracle(config: ExperimentConfig) -> StageResult:
     return run_stage(config.out, "oracle", key, body)
 
 
-def stage_task_language(config: ExperimentConfig, upstream: str, data, cache: EmbeddingCache) -> StageResult:
-    """Algorithm 1: TL generator + receiver on the referential game, all seeds in one program."""
-    key = stable_hash("task_language", upstream, cache.key, config.talar, config.seeds, config.seed)
+def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
+    """Algorithm 3: PPO on [observation, instruction encoding] (for TALAR: the frozen translator's TL)."""
+    key = stable_hash("ifp", setup.key, config.ifp, config.physics, config.num_patterns)
 
     def body(stage_dir: Path) -> dict[str, Any]:
-        train = jax.jit(jax.vmap(make_train_task_language(config.talar, cache.vocab_size), in_axes=(0, None)))
-        seeds = shard_seeds(_seed_keys(config, "task_language"), config.seeds)
-        params, losses = train(seeds, data)
-        _save_tree(stage_dir / "params.msgpack", params)
-        losses = np.asarray(losses)
-        np.save(stage_dir / "losses.npy", losses)
-        window = max(1, losses.shape[1] // 20)
-        return {"rg_loss_start": losses[:, :window].mean(1).tolist(),
-                "rg_loss_end": losses[:, -window:].mean(1).tolist()}  # fmt: skip
-
-    return run_stage(config.out, "task_language", key, body)
-
-
-def stage_translator(config: ExperimentConfig, upstream: StageResult, data, cache: EmbeddingCache) -> StageResult:
-    """Algorithm 2: the translator reproduces the frozen generator's TL; then every instruction is translated."""
-    key = stable_hash("translator", upstream.key)
-
-    def body(stage_dir: Path) -> dict[str, Any]:
-        generator_params = _load_tree(upstream.path / "params.msgpack")["generator"]
-        generate = jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None))
-        targets = jax.jit(generate)(generator_params, data.states, data.final_states)
-        train = jax.jit(jax.vmap(make_train_translator(config.talar), in_axes=(0, 0, None)))
-        params, losses = train(_seed_keys(config, "translator"), targets, data)
-        tables = jax.jit(jax.vmap(make_translate(config.talar), in_axes=(0, None)))(params, data.sentence_embeddings)
-        tables = np.asarray(tables)
-        _save_tree(stage_dir / "params.msgpack", params)
-        np.save(stage_dir / "tables.npy", tables)
-        quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
-        losses = np.asarray(losses)
-        return {
-            "translator_loss_end": losses[:, -max(1, losses.shape[1] // 20) :].mean(1).tolist(),
-            "tl_quality": {k: [q[k] for q in quality] for k in quality[0]},
-            "distinct_dataset_codes": [len(np.unique(np.asarray(t).round(), axis=0)) for t in targets],
-        }
-
-    return run_stage(config.out, "translator", key, body)
-
-
-class FrozenTableConditioner(InstructionTableConditioner):
-    """A per-seed instruction table that PPO carries in ``params["conditioner"]`` but never changes."""
-
-    def init(self, rng: jax.Array) -> Any:
-        del rng
-        return {"table": self.table}
-
-    def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
-        table = jax.lax.stop_gradient(params["table"])
-        return jnp.where(instruction >= 0, table[jnp.maximum(instruction, 0)], 0.0)
-
-
-def instruction_lookups(config: ExperimentConfig, cache: EmbeddingCache) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """split -> (goal -> cache rows of its instructions, counts); CLEVR training may keep only k patterns."""
-    from talar_jax.language import load_instructions
-
-    lookups = {}
-    for split in ("train", "test"):
-        kwargs = {"num_patterns": config.num_patterns} if split == "train" and config.num_patterns else {}
-        instructions = load_instructions(config.env, split, **kwargs)
-        lookups[split] = (instructions.goal_cache_rows(), instructions.goal_sentence_counts)
-    return lookups
-
-
-def stage_ifp(config: ExperimentConfig, upstream: StageResult, cache: EmbeddingCache) -> StageResult:
-    """Algorithm 3: PPO on [observation, translated TL] with the translator frozen (its TL table)."""
-    key = stable_hash("ifp", upstream.key, config.ifp, config.physics, config.num_patterns)
-
-    def body(stage_dir: Path) -> dict[str, Any]:
-        tables = np.load(upstream.path / "tables.npy")  # (seeds, S, |L_T|)
-        env = envs.make(config.env, physics=config.physics)
-        conditioner = FrozenTableConditioner(tables[0], instruction_lookups(config, cache))
         logger = TerminalLogger(("eval/train/success", "eval/test/success", "train/success", "train/sps"))
-        result = run_ppo(config.ifp, env, conditioner, stage_dir / "ppo", progress=config.progress,
-                         logger=logger if config.progress else None,
-                         initial_conditioner_params={"table": jnp.asarray(tables)})  # fmt: skip
+        result = run_ppo(config.ifp, env, setup.conditioner, stage_dir / "ppo", progress=config.progress,
+                         logger=logger if config.progress else None, initial_params=setup.initial_params)  # fmt: skip
         return {
             "env_steps": result.env_steps,
             "wall_s": result.wall_s,
             **{f"{split}_success_per_seed": ev["success_per_seed"] for split, ev in result.final_eval.items()},
         }
 
-    return run_stage(config.out, "ifp", key, body)
+    return run_stage(config.out, f"{config.method}/ifp", key, body)
 
 
-def _seed_keys(config: ExperimentConfig, stage: str) -> jax.Array:
-    """(seeds,) keys of a stage, stable across processes (crc32 of the stage name, not Python's hash)."""
-    stage_key = jax.random.fold_in(jax.random.PRNGKey(config.seed), zlib.crc32(stage.encode()))
-    return jax.random.split(stage_key, config.seeds)
-
-
-def write_report(config: ExperimentConfig, stages: dict[str, StageResult], cache: EmbeddingCache) -> dict[str, Any]:
-    """Fig. 4-style curves, Fig. 5a-style t-SNE of translated TL, a markdown table and ``summary.json``."""
-    rows = [json.loads(line) for line in (stages["ifp"].path / "ppo" / "metrics.jsonl").read_text().splitlines()]
+def learning_curve(ifp: StageResult) -> LearningCurve:
+    """Success per seed over env steps from the IFP's ``metrics.jsonl``."""
+    rows = [json.loads(line) for line in (ifp.path / "ppo" / "metrics.jsonl").read_text().splitlines()]
     rows = [r for r in rows if "eval/train/success_per_seed" in r]
     steps = np.array([r["train/env_steps"] for r in rows])
-    success = {s: np.array([r[f"eval/{s}/success_per_seed"] for r in rows]).T for s in ("train", "test")}
-    title = f"{config.env} ({config.seeds} seeds)"
-    plot_learning_curves({"TALAR": LearningCurve(steps, success)}, config.out / "curves.png", title=title)
-    tables = np.load(stages["translator"].path / "tables.npy")
+    return LearningCurve(steps, {s: np.array([r[f"eval/{s}/success_per_seed"] for r in rows]).T for s in SPLITS})
+
+
+def goal_names(env: str, num_goals: int) -> list[str]:
     from envs.clevr.tasks import describe_goal
     from envs.kitchen.tasks import TASK_NAMES
 
-    names = TASK_NAMES if config.env == "kitchen" else [describe_goal(g) for g in range(cache.num_goals)]
-    plot_tsne(tables[0] + 0.0, cache.goal_ids, config.out / "tsne_tl.png", title=f"translated TL, {config.env}",
-              label_names=names)  # fmt: skip
-    final = {"TALAR": {s: success[s][:, -1] for s in success}}
-    quality = stages["translator"].summary["tl_quality"]
-    table = results_table(final, title=f"Final success rate, {title}")
-    table += "\n" + "\n".join(f"- TL quality `{k}`: {np.mean(v):.3f} (per seed {np.round(v, 3).tolist()})"
-                              for k, v in quality.items()) + "\n"  # fmt: skip
-    table += "\n" + "\n".join(f"- stage `{name}`: {stage.seconds:.0f} s" for name, stage in stages.items()) + "\n"
-    (config.out / "results.md").write_text(table)
+    return list(TASK_NAMES) if env == "kitchen" else [describe_goal(g) for g in range(num_goals)]
+
+
+def write_report(
+    config: ExperimentConfig, stages: dict[str, StageResult], setup: MethodSetup, cache: EmbeddingCache
+) -> dict[str, Any]:
+    """Fig. 4-style curves, Fig. 5a-style t-SNE of the instruction encodings, a markdown table, ``summary.json``."""
+    folder = config.out / config.method
+    label = METHOD_LABELS[config.method]
+    curve = learning_curve(stages["ifp"])
+    title = f"{config.env} ({config.seeds} seeds)"
+    plot_learning_curves({label: curve}, folder / "curves.png", title=title)
+    if setup.encodings is not None:
+        plot_tsne(setup.encodings[0], cache.goal_ids, folder / "tsne.png", title=f"{label} encodings, {config.env}",
+                  label_names=goal_names(config.env, cache.num_goals))  # fmt: skip
+    final = {s: curve.success[s][:, -1] for s in curve.success}
+    table = results_table({label: final}, title=f"Final success rate, {title}")
+    quality = setup.summary.get("tl_quality", {})
+    table += "".join(f"\n- TL quality `{k}`: {np.mean(v):.3f} (per seed {np.round(v, 3).tolist()})" for k, v in
+                     quality.items())  # fmt: skip
+    table += "".join(f"\n- stage `{name}`: {stage.seconds:.0f} s" for name, stage in stages.items()) + "\n"
+    (folder / "results.md").write_text(table)
     summary = {
-        "final_success": {s: success[s][:, -1].tolist() for s in success},
-        "tl_quality": quality,
+        "method": config.method,
+        "final_success": {s: v.tolist() for s, v in final.items()},
+        "method_summary": setup.summary,
         "stage_seconds": {name: stage.seconds for name, stage in stages.items()},
     }
-    write_json_atomic(config.out / "summary.json", summary)
+    write_json_atomic(folder / "summary.json", summary)
     return summary
 
 
 def run(config: ExperimentConfig) -> dict[str, Any]:
-    """Runs (or resumes) every stage and writes the report; returns the summary."""
+    """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
     config = resolve(config)
-    config.out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(config.out / "config.json", json.loads(json.dumps(dataclasses.asdict(config), default=str)))
+    (config.out / config.method).mkdir(parents=True, exist_ok=True)
+    write_json_atomic(config.out / config.method / "config.json", to_jsonable(config))
     start = time.perf_counter()
     stages: dict[str, StageResult] = {"oracle": stage_oracle(config)}
     cache = build_cache(config.env, config.encoder, progress=config.progress)
     dataset = TaskDataset.load(stages["oracle"].path / "dataset")
-    data = make_task_language_data(dataset, cache)
-    stages["task_language"] = stage_task_language(config, stages["oracle"].key, data, cache)
-    stages["translator"] = stage_translator(config, stages["task_language"], data, cache)
-    stages["ifp"] = stage_ifp(config, stages["translator"], cache)
-    summary = write_report(config, stages, cache)
+    env = envs.make(config.env, physics=config.physics)
+    ctx = MethodContext(config, stages["oracle"].key, make_task_language_data(dataset, cache), cache, dataset, env)
+    setup = METHODS[config.method](ctx)
+    stages["ifp"] = stage_ifp(config, setup, env)
+    summary = write_report(config, stages, setup, cache)
     summary["wall_s_this_call"] = time.perf_counter() - start
-    print((config.out / "results.md").read_text())
-    print(f"outputs in {config.out}: config.json, results.md, summary.json, curves.png, tsne_tl.png, <stage>/")
+    print((config.out / config.method / "results.md").read_text())
+    print(f"outputs in {config.out}/{config.method}: config.json, results.md, summary.json, curves.png, tsne.png")
     return summary

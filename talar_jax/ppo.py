@@ -350,7 +350,7 @@ def run_ppo(
     eval_splits: Sequence[str] = SPLITS,
     target_success: float | None = None,
     stop_at_target: bool = False,
-    initial_conditioner_params: Any = None,
+    initial_params: dict[str, Any] | None = None,
 ) -> PPOResult:
     """Trains ``config.num_seeds`` seeds in one compiled program, chunk by chunk, with host work between chunks.
 
@@ -365,8 +365,9 @@ def run_ppo(
         eval_splits: instruction splits to evaluate on.
         target_success: record the env steps and wall-clock at which ``eval/train/success`` first reaches this.
         stop_at_target: stop training once the target is reached.
-        initial_conditioner_params: seed-stacked ``params["conditioner"]`` replacing ``conditioner.init``'s (same
-            structure), e.g. one frozen instruction table per seed.
+        initial_params: seed-stacked parameters replacing freshly initialised ones, by key ("policy", "value",
+            "conditioner"; same structure), e.g. one frozen instruction table per seed or behaviour-cloned
+            policy weights. The optimiser state starts fresh.
 
     Returns:
         ``PPOResult``; ``history`` holds the metrics of the chunks run by this call.
@@ -378,11 +379,13 @@ def run_ppo(
     loggers: list[Logger] = [logger or NoOpLogger()]
     seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
     state = jax.jit(jax.vmap(trainer.init))(seed_keys)
-    if initial_conditioner_params is not None:
-        expected = jax.tree.structure(state.params["conditioner"])
-        if jax.tree.structure(initial_conditioner_params) != expected:
-            raise ValueError(f"initial_conditioner_params must have the structure {expected}")
-        state = state.replace(params={**state.params, "conditioner": initial_conditioner_params})
+    if initial_params:
+        params = dict(state.params)
+        for name, value in initial_params.items():
+            if name not in params or jax.tree.structure(value) != jax.tree.structure(params[name]):
+                raise ValueError(f"initial_params[{name!r}] must match the structure of params[{name!r}]")
+            params[name] = jax.tree.map(jnp.asarray, value)
+        state = state.replace(params=params)
     state = shard_seeds(state, config.num_seeds)
     checkpointer, progress_path, done = None, None, {"chunks": 0, "wall_s": 0.0, "target_reached": None}
     if out_dir is not None:
