@@ -46,7 +46,7 @@ class OracleArgs:
     seed: int = 0
     """PPO seed (and collection seed)."""
     quick: bool = False
-    """Tiny budget for a smoke run (about a minute)."""
+    """Tiny budget for a smoke run (about a minute); the dataset then keeps failed episodes too (hindsight s_T)."""
     total_env_steps: int | None = None
     """PPO env steps (default per env)."""
     num_tuples: int | None = None
@@ -118,7 +118,7 @@ def run(args: OracleArgs) -> float:
     dataset = collect_task_dataset(
         env, seed_params, conditioner, num_tuples, jax.random.PRNGKey(args.seed + 7),
         instruction_sampler=sampler, hidden_sizes=config.hidden_sizes,
-        num_envs=16 if args.quick else args.collect_envs, progress=args.progress,
+        num_envs=16 if args.quick else args.collect_envs, progress=args.progress, successful_only=not args.quick,
         config={"env": args.env, "physics": args.physics, "env_steps": result.env_steps, "seed": args.seed,
                 "instruction_ids": "rows of load_instructions(env, 'all') / the embedding cache",
                 "oracle_success": result.final_eval["train"]["success"]},

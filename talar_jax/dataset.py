@@ -133,6 +133,7 @@ def collect_task_dataset(
     max_rounds: int = 1000,
     progress: bool = False,
     config: dict[str, Any] | None = None,
+    successful_only: bool = True,
 ) -> TaskDataset:
     """Rolls out a goal-conditioned policy and keeps the tuples of its successful episodes.
 
@@ -151,6 +152,8 @@ def collect_task_dataset(
         max_rounds: give up (raise) after this many rounds.
         progress: show a tqdm bar over tuples.
         config: stored in the dataset (with the collection statistics added).
+        successful_only: keep only successful episodes (the task dataset's meaning). ``False`` keeps every
+            episode with its last state as s_T (hindsight), for smoke runs with an untrained policy.
 
     Returns:
         The ``TaskDataset``; ``config["collection"]`` has episodes, successes, rounds and seconds.
@@ -179,7 +182,8 @@ def collect_task_dataset(
         end = np.argmax(done, axis=0)
         succeeded = ended & (np.asarray(record["success"])[end, np.arange(num_envs)] > 0.5)
         successes += int(succeeded.sum())
-        for env_index in np.flatnonzero(succeeded & has_language[np.asarray(record["goal"])]):
+        keep = succeeded if successful_only else ended
+        for env_index in np.flatnonzero(keep & has_language[np.asarray(record["goal"])]):
             if kept >= num_tuples:
                 break
             length = min(int(end[env_index]) + 1, num_tuples - kept)
@@ -201,7 +205,8 @@ def collect_task_dataset(
     collection = {"episodes": episodes, "successful_episodes": successes, "kept_episodes": kept_episodes,
                   "goals_without_train_instructions": np.flatnonzero(~has_language).tolist(), "rounds": rounds,
                   "success_rate": successes / max(episodes, 1), "seconds": time.perf_counter() - start,
-                  "num_envs": num_envs, "deterministic": deterministic, "kept": "successful episodes only"}  # fmt: skip
+                  "num_envs": num_envs, "deterministic": deterministic,
+                  "kept": "successful episodes" if successful_only else "all episodes (hindsight s_T)"}  # fmt: skip
     return TaskDataset(
         states=arrays["states"].astype(np.float32),
         final_states=arrays["final_states"].astype(np.float32),
