@@ -16,7 +16,7 @@ $(VENV)/.installed: pyproject.toml requirements-encoder.txt
 install: $(VENV)/.installed
 
 run: install
-	$(PY) -m experiments.demo
+	$(PY) -m experiments.clevr --seeds 5 $(ARGS)
 
 test: install
 	$(PY) -m pytest -q

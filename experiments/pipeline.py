@@ -118,6 +118,11 @@ def stage_oracle(config: ExperimentConfig) -> StageResult:
     return run_stage(config.out, "oracle", key, body)
 
 
+def run_name(config: ExperimentConfig) -> str:
+    """Folder of a method's stages and report: ``<method>`` or ``<method>-patterns<k>``."""
+    return config.method if config.num_patterns is None else f"{config.method}-patterns{config.num_patterns}"
+
+
 def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
     """Algorithm 3: PPO on [observation, instruction encoding] (for TALAR: the frozen translator's TL)."""
     key = stable_hash("ifp", setup.key, config.ifp, config.physics, config.num_patterns)
@@ -132,7 +137,7 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
             **{f"{split}_success_per_seed": ev["success_per_seed"] for split, ev in result.final_eval.items()},
         }
 
-    return run_stage(config.out, f"{config.method}/ifp", key, body)
+    return run_stage(config.out, f"{run_name(config)}/ifp", key, body)
 
 
 def learning_curve(ifp: StageResult) -> LearningCurve:
@@ -154,7 +159,7 @@ def write_report(
     config: ExperimentConfig, stages: dict[str, StageResult], setup: MethodSetup, cache: EmbeddingCache
 ) -> dict[str, Any]:
     """Fig. 4-style curves, Fig. 5a-style t-SNE of the instruction encodings, a markdown table, ``summary.json``."""
-    folder = config.out / config.method
+    folder = config.out / run_name(config)
     label = METHOD_LABELS[config.method]
     curve = learning_curve(stages["ifp"])
     title = f"{config.env} ({config.seeds} seeds)"
@@ -182,8 +187,9 @@ def write_report(
 def run(config: ExperimentConfig) -> dict[str, Any]:
     """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
     config = resolve(config)
-    (config.out / config.method).mkdir(parents=True, exist_ok=True)
-    write_json_atomic(config.out / config.method / "config.json", to_jsonable(config))
+    folder = config.out / run_name(config)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(folder / "config.json", to_jsonable(config))
     start = time.perf_counter()
     stages: dict[str, StageResult] = {"oracle": stage_oracle(config)}
     cache = build_cache(config.env, config.encoder, progress=config.progress)
@@ -194,6 +200,6 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     stages["ifp"] = stage_ifp(config, setup, env)
     summary = write_report(config, stages, setup, cache)
     summary["wall_s_this_call"] = time.perf_counter() - start
-    print((config.out / config.method / "results.md").read_text())
-    print(f"outputs in {config.out}/{config.method}: config.json, results.md, summary.json, curves.png, tsne.png")
+    print((folder / "results.md").read_text())
+    print(f"outputs in {folder}: config.json, results.md, summary.json, curves.png, tsne.png")
     return summary
