@@ -57,7 +57,9 @@ def plot_tsne(
 ) -> Path:
     """t-SNE projection of instruction encodings, one marker/colour per goal (Fig. 5 style). Writes a PNG.
 
-    A small jitter separates identical points (the paper does the same), so identical TL stays visible.
+    A small jitter separates identical points (the paper does the same), so identical TL stays visible. The
+    inputs get a 1e-3 jitter too: sklearn's t-SNE divides by the data's variance and crashes (segfault in
+    Barnes-Hut) when every vector is identical, e.g. a collapsed task language.
     """
     import matplotlib
 
@@ -65,11 +67,13 @@ def plot_tsne(
     import matplotlib.pyplot as plt
     from sklearn.manifold import TSNE
 
-    vectors = np.asarray(vectors, np.float32)
+    rng = np.random.default_rng(0)
+    vectors = np.asarray(vectors, np.float64)
+    vectors = vectors + rng.normal(scale=1e-3, size=vectors.shape)
     labels = np.asarray(labels)
     perplexity = float(min(30.0, max(2.0, (len(vectors) - 1) / 3)))
     points = TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=0).fit_transform(vectors)
-    points = points + np.random.default_rng(0).normal(scale=0.01 * points.std(), size=points.shape)
+    points = points + rng.normal(scale=0.01 * points.std(), size=points.shape)
     fig, ax = plt.subplots(figsize=(5.5, 5))
     markers = "o^sDvP*Xh<>p"
     cmap = plt.get_cmap("tab20")

@@ -13,6 +13,9 @@ def test_learning_curve_and_tsne_figures(tmp_path):
     vectors = np.repeat(np.eye(4), 10, axis=0)
     path = plot_tsne(vectors, np.repeat(np.arange(4), 10), tmp_path / "tsne.png", label_names=list("abcd"))
     assert path.stat().st_size > 1000
+    # A collapsed encoding (every vector identical) must still plot (it crashed sklearn's t-SNE before).
+    path = plot_tsne(np.ones((40, 14)), np.repeat(np.arange(4), 10), tmp_path / "collapsed.png")
+    assert path.stat().st_size > 1000
 
 
 def test_results_table_mean_and_std():
