@@ -16,7 +16,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from flax import serialization
 
 from talar_jax.baselines import (
@@ -29,6 +28,7 @@ from talar_jax.baselines import (
 from talar_jax.conditioning import Conditioner, InstructionSampler, InstructionTableConditioner
 from talar_jax.language import EmbeddingCache, load_instructions
 from talar_jax.networks import make_ppo_networks
+from talar_jax.optim import fit_with_adam
 from talar_jax.sharding import shard_seeds
 from talar_jax.stages import StageResult, run_stage, stable_hash
 from talar_jax.talar import (
@@ -250,9 +250,9 @@ def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: 
     states = jnp.asarray(dataset.states, jnp.float32)
     actions = jnp.asarray(dataset.actions)
     instructions = jnp.asarray(dataset.instruction_ids, jnp.int32)
-    optimizer = optax.adam(config.talar.translator_learning_rate)
 
-    def loss_fn(params, rows):
+    def loss_fn(params, rng_step):
+        rows = jax.random.randint(rng_step, (config.talar.batch_size,), 0, states.shape[0])
         cond = jax.vmap(conditioner.apply, in_axes=(None, 0))(params["conditioner"], instructions[rows])
         dist = networks.policy.apply(params["policy"], jnp.concatenate([states[rows], cond], -1))
         return -networks.distribution.log_prob(dist, actions[rows]).mean()
@@ -260,16 +260,7 @@ def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: 
     def train(rng):
         rng_policy, rng_conditioner, rng_steps = jax.random.split(rng, 3)
         params = {"policy": networks.init(rng_policy)["policy"], "conditioner": conditioner.init(rng_conditioner)}
-
-        def update(carry, rng_step):
-            params, opt_state = carry
-            rows = jax.random.randint(rng_step, (config.talar.batch_size,), 0, states.shape[0])
-            loss, grads = jax.value_and_grad(loss_fn)(params, rows)
-            updates, opt_state = optimizer.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), loss
-
-        (params, _), losses = jax.lax.scan(update, (params, optimizer.init(params)), jax.random.split(rng_steps, steps))
-        return params, losses
+        return fit_with_adam(loss_fn, params, config.talar.translator_learning_rate, rng_steps, steps)
 
     return train
 

@@ -17,8 +17,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
+from talar_jax.optim import fit_with_adam
 from talar_jax.task_language import ReluMLP
 
 
@@ -82,7 +82,6 @@ class LatentActionAutoencoder(nn.Module):
 def make_train_gla(latent_size: int, observation_size: int, steps: int, batch_size: int, learning_rate: float):
     """Returns ``train(rng, states, final_states) -> (params, losses)``: reconstruction MSE of s_T."""
     model = LatentActionAutoencoder(latent_size, observation_size)
-    optimizer = optax.adam(learning_rate)
 
     def train(rng, states, final_states):
         rng_init, rng_steps = jax.random.split(rng)
@@ -94,14 +93,7 @@ def make_train_gla(latent_size: int, observation_size: int, steps: int, batch_si
             prediction, _ = model.apply(params, states[rows], final_states[rows], rng_noise)
             return jnp.mean((prediction - final_states[rows]) ** 2)
 
-        def update(carry, rng_step):
-            params, opt_state = carry
-            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step)
-            updates, opt_state = optimizer.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), loss
-
-        (params, _), losses = jax.lax.scan(update, (params, optimizer.init(params)), jax.random.split(rng_steps, steps))
-        return params, losses
+        return fit_with_adam(loss_fn, params, learning_rate, rng_steps, steps)
 
     return train
 

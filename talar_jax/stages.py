@@ -10,13 +10,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import shutil
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from talar_jax.checkpoint import write_json_atomic
 
 
 def to_jsonable(value: Any) -> Any:
@@ -38,16 +38,6 @@ def stable_hash(*parts: Any) -> str:
     """A short sha256 of JSON-serialised parts (configs, upstream keys)."""
     payload = json.dumps([to_jsonable(p) for p in parts], sort_keys=True, default=str)
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
-
-
-def write_json_atomic(path: str | Path, value: Any) -> None:
-    """Writes JSON through a temporary file and ``os.replace`` so readers never see half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(to_jsonable(value), f, indent=2)
-    os.replace(tmp, path)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,7 +81,7 @@ def run_stage(
     start = time.perf_counter()
     summary = body(stage_dir)
     seconds = time.perf_counter() - start
-    write_json_atomic(marker, {"key": key, "summary": summary, "seconds": seconds})
+    write_json_atomic(marker, to_jsonable({"key": key, "summary": summary, "seconds": seconds}))
     pending.unlink(missing_ok=True)
     log(f"[{name}] done in {seconds:.1f} s")
     return StageResult(stage_dir, key, summary, seconds, False)

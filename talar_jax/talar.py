@@ -16,8 +16,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
+from talar_jax.optim import fit_with_adam
 from talar_jax.task_language import (
     Receiver,
     TaskLanguageGenerator,
@@ -116,7 +116,6 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
     ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step.
     """
     generator, receiver = _generator(config), Receiver(vocab_size, config.receiver_hidden)
-    optimizer = optax.adam(config.rg_learning_rate)
 
     def loss_fn(params, rng, data: TaskLanguageData):
         rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
@@ -139,16 +138,9 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
             ),
         }
 
-        def update(carry, rng_step):
-            params, opt_state = carry
-            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step, data)
-            updates, opt_state = optimizer.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), loss
-
-        (params, _), losses = jax.lax.scan(
-            update, (params, optimizer.init(params)), jax.random.split(rng_steps, config.rg_steps)
+        return fit_with_adam(
+            lambda p, k: loss_fn(p, k, data), params, config.rg_learning_rate, rng_steps, config.rg_steps
         )
-        return params, losses
 
     return train
 
@@ -172,7 +164,6 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
     """
     spec = spec if spec is not None else config.spec
     translator = Translator(spec, config.translator_hidden)
-    optimizer = optax.adam(config.translator_learning_rate)
 
     def train(rng: jax.Array, targets: jax.Array, data: TaskLanguageData):
         targets = jax.lax.stop_gradient(targets)
@@ -184,16 +175,7 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
             logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
             return translator_loss(spec, logits, targets[rows])
 
-        def update(carry, rng_step):
-            params, opt_state = carry
-            loss, grads = jax.value_and_grad(loss_fn)(params, rng_step)
-            updates, opt_state = optimizer.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), loss
-
-        (params, _), losses = jax.lax.scan(
-            update, (params, optimizer.init(params)), jax.random.split(rng_steps, config.translator_steps)
-        )
-        return params, losses
+        return fit_with_adam(loss_fn, params, config.translator_learning_rate, rng_steps, config.translator_steps)
 
     return train
 
