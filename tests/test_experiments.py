@@ -1,0 +1,75 @@
+"""End-to-end ``--quick`` runs of the experiment commands: every stage runs, writes its outputs, and is reused.
+
+The runs use the small BERT folder shipped with the tests (the default encoder is covered by
+tests/test_language.py) so that building the language caches takes seconds.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments import clevr, kitchen
+from experiments.compare import CompareArgs, compare
+
+TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
+QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
+
+
+def _check_run(folder: Path, seeds: int, num_instructions: int, tl_size: int = 14):
+    summary = json.loads((folder / "talar" / "summary.json").read_text())
+    for split in ("train", "test"):
+        rates = np.asarray(summary["final_success"][split])
+        assert rates.shape == (seeds,) and np.all((rates >= 0) & (rates <= 1))
+    for name in ("config.json", "results.md", "curves.png", "tsne.png"):
+        assert (folder / "talar" / name).stat().st_size > 0, name
+    tables = np.load(folder / "talar" / "translator" / "tables.npy")
+    assert tables.shape == (seeds, num_instructions, tl_size)
+    assert set(np.unique(tables).tolist()) <= {0.0, 1.0}
+    np.testing.assert_array_equal(tables[:, :, 4:].reshape(seeds, -1, 2, 5).sum(-1), 1)  # one-hot arguments
+    rows = [json.loads(line) for line in (folder / "talar" / "ifp" / "ppo" / "metrics.jsonl").read_text().splitlines()]
+    assert rows and all(np.isfinite(r["losses/policy"]) for r in rows)
+    assert "| TALAR |" in (folder / "talar" / "results.md").read_text()
+    assert (folder / "oracle" / "dataset" / "task_dataset.npz").exists()
+    return summary
+
+
+@pytest.fixture(scope="module")
+def clevr_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("clevr")
+    summary = clevr.main([*QUICK, "--out", str(out)])
+    return out, summary
+
+
+def test_clevr_quick_end_to_end(clevr_run, capsys):
+    out, summary = clevr_run
+    _check_run(out, seeds=2, num_instructions=1440)
+    assert summary["method"] == "talar"
+    # Running the same command again reuses every stage and reports the same result.
+    again = clevr.main([*QUICK, "--out", str(out)])
+    assert "up to date" in capsys.readouterr().out
+    assert again["final_success"] == summary["final_success"]
+
+
+def test_compare_quick_runs_baselines_on_shared_stages(clevr_run):
+    out, _ = clevr_run
+    final = compare(CompareArgs(env="clevr", methods=("talar", "onehot", "bert-binary"), seeds=2, out=out,
+                                quick=True, encoder=TINY_BERT, progress=False))  # fmt: skip
+    assert set(final) == {"TALAR", "One-hot", "BERT-binary"}
+    assert (out / "compare.png").stat().st_size > 0
+    assert "| One-hot |" in (out / "compare.md").read_text()
+
+
+def test_kitchen_quick_end_to_end(tmp_path):
+    kitchen.main([*QUICK, "--out", str(tmp_path)])
+    _check_run(tmp_path, seeds=2, num_instructions=120)
+
+
+def test_bad_experiment_options_fail_clearly(tmp_path):
+    with pytest.raises(ValueError, match="unknown method 'nope'"):
+        clevr.main(["--method", "nope", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="num-patterns"):
+        kitchen.main(["--num-patterns", "3", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="valid methods"):
+        compare(CompareArgs(methods=("talar", "bogus"), out=tmp_path))
