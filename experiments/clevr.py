@@ -1,25 +1,8 @@
 """TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-from __future__ import annotations
+from experiments.pipeline import command
 
-import dataclasses
-from pathlib import Path
-
-import tyro
-
-from experiments.pipeline import ExperimentConfig, run
-from talar_jax.ppo import PPOConfig
-
-DEFAULT = ExperimentConfig(
-    env="clevr",
-    out=Path("runs/clevr"),
-    ifp=dataclasses.replace(PPOConfig(), eval_every_chunks=2, eval_episodes=80, total_env_steps=2_000_000),
-)
-
-
-def main(argv: list[str] | None = None) -> dict:
-    return run(tyro.cli(ExperimentConfig, default=DEFAULT, args=argv, description=__doc__))
-
+DEFAULT, main = command("clevr", total_env_steps=2_000_000)
 
 if __name__ == "__main__":
     main()

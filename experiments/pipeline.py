@@ -184,6 +184,19 @@ def write_report(
     return summary
 
 
+def command(env: str, total_env_steps: int):
+    """The default config and ``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``)."""
+    import tyro
+
+    default = ExperimentConfig(env=env, out=Path(f"runs/{env}"), ifp=dataclasses.replace(
+        PPOConfig(), eval_every_chunks=2, eval_episodes=80, total_env_steps=total_env_steps))  # fmt: skip
+
+    def main(argv: list[str] | None = None) -> dict[str, Any]:
+        return run(tyro.cli(ExperimentConfig, default=default, args=argv))
+
+    return default, main
+
+
 def run(config: ExperimentConfig) -> dict[str, Any]:
     """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
     config = resolve(config)
