@@ -1,11 +1,17 @@
-"""Train the goal-conditioned oracle of an env with PPO and write its task dataset.
+"""Collect an env's task dataset with a goal-conditioned oracle: a PPO policy or a scripted collector.
 
-``python -m experiments.oracle --env clevr --out runs/oracle-clevr [--physics c|mjx] [--seed 0] [--quick]``
+``python -m experiments.oracle --env clevr --out runs/oracle-clevr [--collector policy|scripted] [--quick]``
 
-Writes under ``--out``: ``ppo/`` (config.json, orbax checkpoints, metrics.jsonl, progress.json; a killed run
-resumes from its last chunk), ``oracle.json`` (success per goal on train/test instructions, env steps and
-wall-clock to the success target) and ``dataset/`` (``TaskDataset``: (s_i, a_i, s_T, L_N) of successful
-episodes, L_N drawn from the goal's training instructions, with the config that made it).
+Collectors (default per env): ``policy`` trains a goal-conditioned PPO oracle (kitchen); ``scripted`` (CLEVR)
+pushes only the goal's source ball, greedily towards the target point with epsilon-random directions. The
+original collected CLEVR data in its ``collect`` action space (8 pushes of the source ball), so s_i -> s_T
+shows which ball the instruction names; a 40-action PPO oracle instead moves non-goal balls in most episodes,
+which leaves the referential game with ambiguous state pairs.
+
+Writes under ``--out``: ``ppo/`` (policy collector: config.json, orbax checkpoints, metrics.jsonl,
+progress.json; a killed run resumes from its last chunk), ``oracle.json`` (success per goal on train/test
+instructions, env steps and wall-clock to the success target) and ``dataset/`` (``TaskDataset``: (s_i, a_i, s_T, L_N)
+of successful episodes, L_N drawn from the goal's training instructions, with the config that made it).
 """
 
 from __future__ import annotations
@@ -13,12 +19,14 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 import tyro
 
 import envs
+from envs.clevr.scripted import greedy_push
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler
 from talar_jax.dataset import TaskDataset, collect_task_dataset
@@ -31,6 +39,9 @@ ORACLE_DEFAULTS: dict[str, dict[str, float]] = {
     "clevr": {"total_env_steps": 3_000_000, "num_tuples": 100_000, "target_success": 0.9},
     "kitchen": {"total_env_steps": 10_000_000, "num_tuples": 50_000, "target_success": 0.7},
 }
+COLLECTORS: tuple[str, ...] = ("policy", "scripted")
+DEFAULT_COLLECTOR: dict[str, str] = {"clevr": "scripted", "kitchen": "policy"}
+SCRIPTED_EPSILON = 0.2  # random-direction probability of the scripted CLEVR collector
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +52,9 @@ class OracleArgs:
     """Env name (one with goal ids and instructions: clevr or kitchen)."""
     out: Path = Path("runs/oracle")
     """Output directory (resumed when it already holds a run)."""
+    collector: str | None = None
+    """'policy' (train a goal-conditioned PPO oracle) or 'scripted' (CLEVR only: greedy source-ball pushes in the
+    original's collect action space); default per env: clevr scripted, kitchen policy."""
     physics: str = "c"
     """Physics backend: 'c' (MuJoCo C, fast on CPU) or 'mjx'."""
     seed: int = 0
@@ -79,58 +93,89 @@ def oracle_ppo_config(args: OracleArgs) -> PPOConfig:
                      eval_episodes=args.eval_episodes, seed=args.seed)  # fmt: skip
 
 
-def run(args: OracleArgs) -> float:
-    """Trains (or resumes) the oracle, writes ``oracle.json`` and the dataset; returns the final train success."""
-    if args.env not in ORACLE_DEFAULTS:
-        raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
-    defaults = ORACLE_DEFAULTS[args.env]
-    env = envs.make(args.env, physics=args.physics)
-    conditioner = GoalOneHotConditioner(env.num_goals)
+def collector_of(args: OracleArgs) -> str:
+    """The collector a run uses (``--collector`` or the env's default); raises on unknown names."""
+    collector = args.collector or DEFAULT_COLLECTOR.get(args.env, "policy")
+    if collector not in COLLECTORS:
+        raise ValueError(f"unknown collector {collector!r}; valid: {', '.join(COLLECTORS)}")
+    if collector == "scripted" and args.env != "clevr":
+        raise ValueError(f"the scripted collector exists for clevr only, not {args.env!r}; use --collector policy")
+    return collector
+
+
+def _train_policy(args: OracleArgs, env, conditioner, defaults) -> tuple[dict, Any]:
+    """Trains (or resumes) the PPO oracle; returns its summary and one seed's parameters."""
     config = oracle_ppo_config(args)
     target = args.target_success if args.target_success is not None else defaults["target_success"]
     result = run_ppo(config, env, conditioner, args.out / "ppo", progress=args.progress, logger=TerminalLogger(
         ("eval/train/success", "eval/test/success", "train/success", "train/sps", "train/compile_s")),
         target_success=target, stop_at_target=True)  # fmt: skip
     summary = {
-        "env": args.env,
-        "physics": args.physics,
+        "collector": "policy",
         "target_success": target,
         "target_reached": result.target_reached,
         "env_steps": result.env_steps,
         "train_wall_s": result.wall_s,
         "eval": result.final_eval,
+        "success": float(result.final_eval["train"]["success"]),
         "ppo_config": dataclasses.asdict(config),
     }
-    write_json_atomic(args.out / "oracle.json", summary)
-    print(f"oracle: success {result.final_eval['train']['success']:.3f} (train instructions) after "
+    print(f"oracle: success {summary['success']:.3f} (train instructions) after "
           f"{result.env_steps} env steps, {result.wall_s:.0f} s; target {target} reached: {result.target_reached}")
+    return summary, jax.tree.map(lambda leaf: leaf[0], result.params)
+
+
+def run(args: OracleArgs) -> float:
+    """Trains (or resumes) the oracle, writes ``oracle.json`` and the dataset; returns the oracle's success."""
+    if args.env not in ORACLE_DEFAULTS:
+        raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
+    defaults = ORACLE_DEFAULTS[args.env]
+    collector = collector_of(args)
+    conditioner = GoalOneHotConditioner(envs.make(args.env).num_goals)
+    if collector == "policy":
+        env = envs.make(args.env, physics=args.physics)
+        summary, seed_params = _train_policy(args, env, conditioner, defaults)
+        behaviour = None
+    else:
+        env = envs.make(args.env, physics=args.physics, action_type="collect")
+        summary = {"collector": "scripted", "epsilon": SCRIPTED_EPSILON, "env_steps": 0}
+        seed_params = None
+
+        def behaviour(state, rng):
+            return greedy_push(state, rng, SCRIPTED_EPSILON)
+
+    summary = {"env": args.env, "physics": args.physics, **summary}
+    write_json_atomic(args.out / "oracle.json", summary)
 
     num_tuples = args.num_tuples or (1_000 if args.quick else int(defaults["num_tuples"]))
     dataset_dir = args.out / "dataset"
     existing = TaskDataset.load(dataset_dir) if (dataset_dir / "task_dataset.npz").exists() else None
-    if existing is not None and len(existing) == num_tuples and existing.config.get("env_steps") == result.env_steps:
+    same_oracle = existing is not None and existing.config.get("env_steps") == summary["env_steps"]
+    if same_oracle and len(existing) == num_tuples and existing.config.get("collector", "policy") == collector:
         print(f"dataset: {dataset_dir} already holds {len(existing)} tuples of this oracle")
-        return float(result.final_eval["train"]["success"])
+        return float(existing.config.get("oracle_success", summary.get("success", 0.0)))
     instructions = load_instructions(args.env, "train")
     sampler = InstructionSampler({"train": (instructions.goal_cache_rows(), instructions.goal_sentence_counts)})
-    seed_params = jax.tree.map(lambda leaf: leaf[0], result.params)
     start = time.perf_counter()
     dataset = collect_task_dataset(
         env, seed_params, conditioner, num_tuples, jax.random.PRNGKey(args.seed + 7),
-        instruction_sampler=sampler, hidden_sizes=config.hidden_sizes,
+        instruction_sampler=sampler, hidden_sizes=oracle_ppo_config(args).hidden_sizes, behaviour=behaviour,
         num_envs=16 if args.quick else args.collect_envs, progress=args.progress, successful_only=not args.quick,
-        config={"env": args.env, "physics": args.physics, "env_steps": result.env_steps, "seed": args.seed,
+        config={"env": args.env, "physics": args.physics, "env_steps": summary["env_steps"], "seed": args.seed,
+                "collector": collector,
                 "instruction_ids": "rows of load_instructions(env, 'all') / the embedding cache",
-                "oracle_success": result.final_eval["train"]["success"]},
+                "oracle_success": summary.get("success")},
     )  # fmt: skip
-    dataset.save(dataset_dir)
     collection = dataset.config["collection"]
+    if collector == "scripted":  # the scripted collector's success is its collection success
+        summary["success"] = dataset.config["oracle_success"] = collection["success_rate"]
+    dataset.save(dataset_dir)
     print(f"dataset: {len(dataset)} tuples from {collection['kept_episodes']} successful episodes "
           f"({collection['success_rate']:.2f} success) in {time.perf_counter() - start:.0f} s -> {dataset_dir}")
     summary["dataset"] = {"num_tuples": len(dataset), **collection,
                           "goals": np.bincount(dataset.goal_ids, minlength=env.num_goals).tolist()}  # fmt: skip
     write_json_atomic(args.out / "oracle.json", summary)
-    return float(result.final_eval["train"]["success"])
+    return float(summary["success"])
 
 
 if __name__ == "__main__":

@@ -184,12 +184,26 @@ def write_report(
     return summary
 
 
+# Referential-game settings of the experiment commands. Table 2's LR 3e-4 at Gumbel temperature 1 left the generator
+# transmitting almost nothing in our runs (CLEVR, 6k steps: deterministic TL decoded the tuple's goal for 3 % of
+# tuples, RG loss 0.54 = the loss of a receiver that ignores L_T; with LR 3e-3 and temperature 2, 20k steps:
+# 47 %, loss 0.35, against 0.18 for a receiver told the goal). Measured with scripts in the issue-6 note.
+EXPERIMENT_TALAR = TalarConfig(rg_learning_rate=3e-3, gumbel_temperature=2.0)
+
+
 def command(env: str, total_env_steps: int):
     """The default config and ``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``)."""
     import tyro
 
-    default = ExperimentConfig(env=env, out=Path(f"runs/{env}"), ifp=dataclasses.replace(
-        PPOConfig(), eval_every_chunks=2, eval_episodes=80, total_env_steps=total_env_steps))  # fmt: skip
+    default = ExperimentConfig(
+        env=env,
+        out=Path(f"runs/{env}"),
+        talar=EXPERIMENT_TALAR,
+        # the original evaluated with stochastic episodes (40 per split); a deterministic discrete policy can
+        # repeat a blocked push until the time limit
+        ifp=dataclasses.replace(PPOConfig(), eval_every_chunks=2, eval_episodes=80, eval_deterministic=False,
+                                total_env_steps=total_env_steps),
+    )  # fmt: skip
 
     def main(argv: list[str] | None = None) -> dict[str, Any]:
         return run(tyro.cli(ExperimentConfig, default=default, args=argv))

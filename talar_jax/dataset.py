@@ -31,7 +31,8 @@ class TaskDataset:
     Attributes:
         states: (N, obs) float32 s_i, every state of a successful episode where an action was taken.
         final_states: (N, obs) float32 s_T, the state in which that episode succeeded.
-        actions: (N,) int32 or (N, action) float32 a_i taken in s_i (for behaviour cloning).
+        actions: (N,) int32 or (N, action) float32 a_i taken in s_i (for behaviour cloning), in the full action
+            space of the env (CLEVR's 'collect' pushes are stored as 40-way push ids).
         instruction_ids: (N,) int32 L_N, a training instruction of the episode's goal drawn per tuple.
         goal_ids: (N,) int32 goal of the episode.
         episode_ids: (N,) int32 episode each tuple comes from.
@@ -84,8 +85,13 @@ class TaskDataset:
 class _Roller:
     """Jitted rounds: reset ``num_envs`` envs, play ``episode_length`` steps, return the time-major record."""
 
-    def __init__(self, env: Any, networks: PPONetworks, conditioner: Conditioner, deterministic: bool):
+    def __init__(
+        self, env: Any, networks: PPONetworks, conditioner: Conditioner, deterministic: bool, behaviour: Any = None
+    ):
         self.env = EpisodeWrapper(env)
+        self.behaviour = behaviour
+        # envs with a reduced collection action space (CLEVR's 'collect') record the full-space action id
+        self.record_action = getattr(env, "push_action", lambda state, action: action)
         self.conditioner = conditioner
         self.make_policy = make_inference_fn(networks)
         self.deterministic = deterministic
@@ -94,16 +100,23 @@ class _Roller:
         rng_reset, rng_instruction, rng_act = jax.random.split(rng, 3)
         state = jax.vmap(self.env.reset)(jax.random.split(rng_reset, num_envs))
         goal = goal_of(state)
-        sample = jax.vmap(self.conditioner.sample, in_axes=(0, 0, None))
-        instruction = sample(jax.random.split(rng_instruction, num_envs), goal, "train")
-        cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
-        policy = self.make_policy(params, self.deterministic)
         step_envs = jax.vmap(self.env.step)
+        if self.behaviour is not None:
+            act = jax.vmap(self.behaviour)
+        else:
+            sample = jax.vmap(self.conditioner.sample, in_axes=(0, 0, None))
+            instruction = sample(jax.random.split(rng_instruction, num_envs), goal, "train")
+            cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+            policy = self.make_policy(params, self.deterministic)
+
+            def act(state, rngs):
+                return jax.vmap(policy)(state.obs, cond, rngs)
 
         def one_step(state, rng_step):
-            action = policy(state.obs, cond, rng_step)
+            action = act(state, jax.random.split(rng_step, num_envs))
             next_state = step_envs(state, action)
-            record = {"obs": state.obs, "action": action, "next_obs": next_state.obs, "done": next_state.done,
+            record = {"obs": state.obs, "action": jax.vmap(self.record_action)(state, action),
+                      "next_obs": next_state.obs, "done": next_state.done,
                       "success": next_state.metrics["success"]}  # fmt: skip
             return next_state, record
 
@@ -134,6 +147,7 @@ def collect_task_dataset(
     progress: bool = False,
     config: dict[str, Any] | None = None,
     successful_only: bool = True,
+    behaviour: Any = None,
 ) -> TaskDataset:
     """Rolls out a goal-conditioned policy and keeps the tuples of its successful episodes.
 
@@ -152,6 +166,8 @@ def collect_task_dataset(
         max_rounds: give up (raise) after this many rounds.
         progress: show a tqdm bar over tuples.
         config: stored in the dataset (with the collection statistics added).
+        behaviour: a scripted ``act(state, rng) -> action`` (one env) to collect with instead of the policy;
+            ``policy_params`` may then be None and ``deterministic`` is ignored.
         successful_only: keep only successful episodes (the task dataset's meaning). ``False`` keeps every
             episode with its last state as s_T (hindsight), for smoke runs with an untrained policy.
 
@@ -162,7 +178,7 @@ def collect_task_dataset(
         raise ValueError(f"num_tuples must be >= 1, got {num_tuples}")
     if networks is None:
         networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
-    roller = _Roller(env, networks, conditioner, deterministic)
+    roller = _Roller(env, networks, conditioner, deterministic, behaviour)
     round_fn = jax.jit(roller.round, static_argnums=2)
     sampler = instruction_sampler if instruction_sampler is not None else conditioner
     draw = jax.jit(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train")))

@@ -11,6 +11,7 @@ instruction-following policy is conditioned on (Algorithm 3, via PPO's table con
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from typing import Any, NamedTuple
 
 import jax
@@ -203,7 +204,9 @@ def task_language_quality(table: np.ndarray, goal_ids: np.ndarray, is_train: np.
         ``test_matches_train``: fraction of test instructions whose TL equals the most common TL of the
         training instructions of the same goal; ``train_consistency``: fraction of training instructions
         equal to their goal's most common TL; ``distinct_goal_codes``: fraction of goals whose most common
-        training TL no other goal shares.
+        training TL no other goal shares; ``decodable_train`` / ``decodable_test``: fraction of instructions
+        whose TL names their goal, i.e. the goal most training instructions with that TL have (what a policy
+        conditioned on the TL can know at best; 1 / num_goals for an uninformative table).
     """
     table = np.asarray(table).round().astype(np.int8)
     goal_ids, is_train = np.asarray(goal_ids), np.asarray(is_train, bool)
@@ -216,10 +219,22 @@ def task_language_quality(table: np.ndarray, goal_ids: np.ndarray, is_train: np.
         hits = [np.array_equal(table[i], codes.get(int(goal_ids[i]))) for i in np.flatnonzero(mask)]
         return float(np.mean(hits)) if hits else float("nan")
 
+    keys = [row.tobytes() for row in table]
+    votes: dict[bytes, Counter] = {}
+    for i in np.flatnonzero(is_train):
+        votes.setdefault(keys[i], Counter())[int(goal_ids[i])] += 1
+    named = {key: counter.most_common(1)[0][0] for key, counter in votes.items()}
+
+    def decodable(mask):
+        hits = [named.get(keys[i]) == int(goal_ids[i]) for i in np.flatnonzero(mask)]
+        return float(np.mean(hits)) if hits else float("nan")
+
     code_list = [tuple(c) for c in codes.values()]
     distinct = np.mean([code_list.count(c) == 1 for c in code_list]) if code_list else float("nan")
     return {
         "test_matches_train": matches(~is_train),
         "train_consistency": matches(is_train),
         "distinct_goal_codes": float(distinct),
+        "decodable_train": decodable(is_train),
+        "decodable_test": decodable(~is_train),
     }

@@ -176,6 +176,24 @@ def test_displacement_failure_option(c_env, c_step):
     assert float(moved_source.done) == 0.0
 
 
+def test_collect_action_type_pushes_the_source_ball(c_env, c_step):
+    collect_env = envs.make("clevr", physics="c", action_type="collect")
+    assert collect_env.action_spec.size == 8 and c_env.action_spec.size == 40
+    goal = tasks.goal_id(2, 1, 0)  # source green: collect action k is the 40-way push 2 * 8 + k
+    scene = _scene((-0.3, 0.4), (0.1, 0.05))
+    state = _state_at(collect_env, scene, goal)
+    pushed = jax.jit(collect_env.step)(state, jnp.int32(1))
+    reference = c_step(_state_at(c_env, scene, goal), jnp.int32(2 * 8 + 1))
+    np.testing.assert_allclose(np.asarray(pushed.obs), np.asarray(reference.obs), atol=1e-6)
+    assert int(collect_env.push_action(state, jnp.int32(1))) == 17
+    with pytest.raises(ValueError, match=r"valid actions are 0\.\.7"):
+        collect_env.step(state, jnp.int32(8))
+    with pytest.raises(ValueError, match="needs task='goal'"):
+        envs.make("clevr-arrangement", action_type="collect")
+    with pytest.raises(ValueError, match="unknown action_type"):
+        envs.make("clevr", action_type="continuous")
+
+
 # --- resets --------------------------------------------------------------------------------------------------------
 def test_reset_validity(c_env):
     states = jax.jit(jax.vmap(c_env.reset))(jax.random.split(jax.random.key(7), 2048))

@@ -120,3 +120,16 @@ def test_talar_learns_a_task_language_that_separates_goals_on_a_toy_task():
         jax.tree.map(lambda x: x[0], params["generator"]), data.states[:4], data.final_states[:4]
     )
     assert generated.shape == (4, config.spec.size)
+
+
+def test_task_language_quality_on_a_hand_built_table():
+    goal_ids = np.array([0, 0, 1, 1, 2, 0, 1, 2])
+    is_train = np.array([True, True, True, True, True, False, False, False])
+    a, b = [1, 0, 0], [0, 1, 0]
+    table = np.array([a, a, b, b, b, a, a, b])  # goals 1 and 2 share code b; test of goal 1 gets goal 0's code
+    quality = task_language_quality(table, goal_ids, is_train)
+    assert quality["train_consistency"] == 1.0
+    assert quality["distinct_goal_codes"] == pytest.approx(1 / 3)
+    assert quality["test_matches_train"] == pytest.approx(2 / 3)  # goals 0 and 2 match, goal 1 does not
+    assert quality["decodable_train"] == pytest.approx(4 / 5)  # code b names goal 1 (2 votes to 1)
+    assert quality["decodable_test"] == pytest.approx(1 / 3)  # only goal 0's test instruction is decoded

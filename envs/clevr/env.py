@@ -15,6 +15,7 @@ from envs.clevr import tasks
 from envs.physics import PhysicsState
 
 TASK_KINDS: tuple[str, ...] = ("goal", "arrangement")
+ACTION_TYPES: tuple[str, ...] = ("discrete", "collect")
 _PUSHER_QPOS = slice(2 * tasks.NUM_BALLS, 2 * tasks.NUM_BALLS + 2)  # pusher x, y in the lean model's qpos
 
 
@@ -26,6 +27,9 @@ class ClevrConfig(EnvConfig):
     """Steps per episode (TALAR: 50)."""
     task: str = "goal"
     """'goal': one of 80 push goals per episode; 'arrangement': the 6-constraint arrangement task."""
+    action_type: str = "discrete"
+    """'discrete': 40 pushes (any ball, 8 directions); 'collect': TALAR's data-collection variant, 8 pushes of the
+    goal's source ball only (the original collected its task dataset this way; goal task only)."""
     fail_on_displacement: bool = False
     """Goal task: terminate with -10 when a non-source ball moves > 0.2 from its episode-start position."""
     timestep: float = 0.02
@@ -59,7 +63,8 @@ class ClevrEnv(Env):
     | a % 8 | direction: +x, +y, -x, -y, then (+x+y, -x+y, +x-y, -x-y) x 0.8 (force per axis, N) |
 
     A push teleports the pusher 0.15 d behind the ball (zero pusher velocity) and applies force d for 0.4 s;
-    ball velocities carry over between steps. Float score vectors of length 40 are argmax-ed.
+    ball velocities carry over between steps. Float score vectors of length 40 are argmax-ed. With
+    ``action_type='collect'`` the action is a direction in [0, 8) and the ball is the goal's source.
 
     | observation index | meaning |
     |---|---|
@@ -79,10 +84,17 @@ class ClevrEnv(Env):
         if isinstance(config, ClevrConfig):
             if config.task not in TASK_KINDS:
                 raise ValueError(f"unknown task {config.task!r}; choose one of {', '.join(TASK_KINDS)}")
+            if config.action_type not in ACTION_TYPES:
+                raise ValueError(
+                    f"unknown action_type {config.action_type!r}; choose one of {', '.join(ACTION_TYPES)}"
+                )
+            if config.action_type == "collect" and config.task != "goal":
+                raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
             if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:
                 raise ValueError("timestep must be > 0; substeps, solver_iterations and ls_iterations >= 1")
         super().__init__(config, physics)
         self._arrangement = self.config.task == "arrangement"
+        self._collect = getattr(self.config, "action_type", "discrete") == "collect"
 
     def load_model(self) -> mujoco.MjModel:
         model = super().load_model()
@@ -94,7 +106,17 @@ class ClevrEnv(Env):
     # --- sizes ----------------------------------------------------------------------------------
     @property
     def action_spec(self) -> ActionSpec:
-        return ActionSpec("discrete", tasks.NUM_ACTIONS)
+        return ActionSpec("discrete", tasks.NUM_DIRECTIONS if self._collect else tasks.NUM_ACTIONS)
+
+    def push_action(self, state: State, action: jax.Array) -> jax.Array:
+        """The 40-way push id of ``action`` in ``state`` (for ``action_type='collect'``: source * 8 + direction).
+
+        Task datasets store this id, so a dataset collected with either action type serves 40-action policies.
+        """
+        action = self.check_action(action)
+        if self._collect:
+            return state.task.source * tasks.NUM_DIRECTIONS + action
+        return action
 
     @property
     def num_goals(self) -> int:
@@ -129,7 +151,7 @@ class ClevrEnv(Env):
         return State(data=data, obs=ball_xy.reshape(-1), reward=zero, done=zero, metrics=metrics, info={}, task=task)
 
     def step(self, state: State, action: jax.Array) -> State:
-        action = self.check_action(action)
+        action = self.push_action(state, action)
         ball, direction = action // tasks.NUM_DIRECTIONS, action % tasks.NUM_DIRECTIONS
         force = jnp.asarray(tasks.PUSH_DIRECTIONS)[direction]
         data: PhysicsState = state.data
