@@ -131,13 +131,13 @@ def run(args: OracleArgs) -> float:
         raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
     defaults = ORACLE_DEFAULTS[args.env]
     collector = collector_of(args)
-    conditioner = GoalOneHotConditioner(envs.make(args.env).num_goals)
+    options = {"action_type": "collect"} if collector == "scripted" else {}
+    env = envs.make(args.env, physics=args.physics, **options)
+    conditioner = GoalOneHotConditioner(env.num_goals)
     if collector == "policy":
-        env = envs.make(args.env, physics=args.physics)
         summary, seed_params = _train_policy(args, env, conditioner, defaults)
         behaviour = None
     else:
-        env = envs.make(args.env, physics=args.physics, action_type="collect")
         summary = {"collector": "scripted", "epsilon": SCRIPTED_EPSILON, "env_steps": 0}
         seed_params = None
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections import Counter
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -26,11 +25,13 @@ from talar_jax.language import build_cache  # noqa: E402
 from talar_jax.optim import fit_with_adam  # noqa: E402
 from talar_jax.talar import (  # noqa: E402
     TalarConfig,
+    decodable_fraction,
     make_generate_task_language,
     make_task_language_data,
     make_train_task_language,
     make_train_translator,
     make_translate,
+    sample_referential_batch,
     task_language_quality,
 )
 from talar_jax.task_language import Receiver, referential_game_loss  # noqa: E402
@@ -40,11 +41,7 @@ def reference_receiver_loss(data, goals, num_goals, vocab_size, config, informed
     receiver = Receiver(vocab_size, config.receiver_hidden)
 
     def loss_fn(params, rng):
-        rng_rows, rng_prefix = jax.random.split(rng)
-        rows = jax.random.randint(rng_rows, (config.batch_size,), 0, data.states.shape[0])
-        sentences = data.sentence_ids[rows]
-        offset = jax.random.randint(rng_prefix, rows.shape, 0, data.sentence_prefix_count[sentences])
-        prefix = data.sentence_prefix_start[sentences] + offset
+        rows, prefix = sample_referential_batch(*jax.random.split(rng), data, config.batch_size)
         message = jax.nn.one_hot(goals[rows], num_goals) * float(informed)
         logits = receiver.apply(params, message, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])
@@ -80,11 +77,10 @@ def main() -> None:
           f"({time.perf_counter() - start:.0f} s)")  # fmt: skip
     generate = jax.jit(make_generate_task_language(config))
     codes = np.asarray(generate(params["generator"], data.states, data.final_states)).round().astype(np.int8)
-    votes: dict[bytes, Counter] = {}
-    for code, goal in zip(codes, dataset.goal_ids):
-        votes.setdefault(code.tobytes(), Counter())[int(goal)] += 1
-    decoded = sum(counter.most_common(1)[0][1] for counter in votes.values()) / len(codes)
-    print(f"generator TL: {len(votes)} distinct codes; decodes the tuple's goal for {decoded:.3f} of tuples")
+    every = np.ones(len(codes), bool)
+    decoded = decodable_fraction(codes, dataset.goal_ids, every, every)
+    distinct = len(np.unique(codes, axis=0))
+    print(f"generator TL: {distinct} distinct codes; decodes the tuple's goal for {decoded:.3f} of tuples")
     translator, _ = jax.jit(make_train_translator(config))(jax.random.PRNGKey(1), jnp.asarray(codes, jnp.float32), data)
     table = np.asarray(jax.jit(make_translate(config))(translator, data.sentence_embeddings))
     print("translated table:", task_language_quality(table, cache.goal_ids, cache.is_train))

@@ -107,6 +107,34 @@ def make_task_language_data(dataset: Any, cache: Any) -> TaskLanguageData:
     )
 
 
+def sample_referential_batch(
+    rng_rows: jax.Array, rng_prefix: jax.Array, data: TaskLanguageData, batch_size: int
+) -> tuple[jax.Array, jax.Array]:
+    """(rows, prefix): random tuples and, per tuple, one prefix row T_1..T_{i-1} of its instruction.
+
+    T_i is drawn uniformly from the tokens of the instruction (paper: "randomly sampled").
+    """
+    rows = jax.random.randint(rng_rows, (batch_size,), 0, data.states.shape[0])
+    sentences = data.sentence_ids[rows]
+    offset = jax.random.randint(rng_prefix, rows.shape, 0, data.sentence_prefix_count[sentences])
+    return rows, data.sentence_prefix_start[sentences] + offset
+
+
+def decodable_fraction(codes: np.ndarray, labels: np.ndarray, vote: np.ndarray, score: np.ndarray) -> float:
+    """Fraction of the ``score`` rows whose code names their label: the label most ``vote`` rows with that code have.
+
+    Args:
+        codes: (N, |L|) discrete codes; labels: (N,) int; vote, score: (N,) bool row masks.
+    """
+    keys = [row.tobytes() for row in np.asarray(codes).round().astype(np.int8)]
+    votes: dict[bytes, Counter] = {}
+    for i in np.flatnonzero(vote):
+        votes.setdefault(keys[i], Counter())[int(labels[i])] += 1
+    named = {key: counter.most_common(1)[0][0] for key, counter in votes.items()}
+    hits = [named.get(keys[i]) == int(labels[i]) for i in np.flatnonzero(score)]
+    return float(np.mean(hits)) if hits else float("nan")
+
+
 def _generator(config: TalarConfig) -> TaskLanguageGenerator:
     return TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
 
@@ -120,11 +148,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
 
     def loss_fn(params, rng, data: TaskLanguageData):
         rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
-        rows = jax.random.randint(rng_batch, (config.batch_size,), 0, data.states.shape[0])
-        sentences = data.sentence_ids[rows]
-        # T_i is drawn uniformly from the tokens of the instruction (paper: "randomly sampled").
-        offset = jax.random.randint(rng_prefix, rows.shape, 0, data.sentence_prefix_count[sentences])
-        prefix = data.sentence_prefix_start[sentences] + offset
+        rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.batch_size)
         task_language = generator.apply(params["generator"], data.states[rows], data.final_states[rows], rng_gumbel)
         logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])
@@ -219,22 +243,12 @@ def task_language_quality(table: np.ndarray, goal_ids: np.ndarray, is_train: np.
         hits = [np.array_equal(table[i], codes.get(int(goal_ids[i]))) for i in np.flatnonzero(mask)]
         return float(np.mean(hits)) if hits else float("nan")
 
-    keys = [row.tobytes() for row in table]
-    votes: dict[bytes, Counter] = {}
-    for i in np.flatnonzero(is_train):
-        votes.setdefault(keys[i], Counter())[int(goal_ids[i])] += 1
-    named = {key: counter.most_common(1)[0][0] for key, counter in votes.items()}
-
-    def decodable(mask):
-        hits = [named.get(keys[i]) == int(goal_ids[i]) for i in np.flatnonzero(mask)]
-        return float(np.mean(hits)) if hits else float("nan")
-
     code_list = [tuple(c) for c in codes.values()]
     distinct = np.mean([code_list.count(c) == 1 for c in code_list]) if code_list else float("nan")
     return {
         "test_matches_train": matches(~is_train),
         "train_consistency": matches(is_train),
         "distinct_goal_codes": float(distinct),
-        "decodable_train": decodable(is_train),
-        "decodable_test": decodable(~is_train),
+        "decodable_train": decodable_fraction(table, goal_ids, is_train, is_train),
+        "decodable_test": decodable_fraction(table, goal_ids, is_train, ~is_train),
     }

@@ -94,7 +94,7 @@ class ClevrEnv(Env):
                 raise ValueError("timestep must be > 0; substeps, solver_iterations and ls_iterations >= 1")
         super().__init__(config, physics)
         self._arrangement = self.config.task == "arrangement"
-        self._collect = getattr(self.config, "action_type", "discrete") == "collect"
+        self._collect = self.config.action_type == "collect"
 
     def load_model(self) -> mujoco.MjModel:
         model = super().load_model()
