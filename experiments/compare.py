@@ -42,6 +42,8 @@ class CompareArgs:
     """Local BERT folder (default: all-MiniLM-L6-v2)."""
     num_patterns: int | None = None
     """CLEVR: train on the first k sentence patterns (Table 3)."""
+    ifp_env_steps: int | None = None
+    """IFP env steps per seed and method (default: the env command's, the paper's budget)."""
     progress: bool = True
     """Progress output."""
 
@@ -52,8 +54,13 @@ def base_config(args: CompareArgs) -> ExperimentConfig:
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown or not args.methods:
         raise ValueError(f"unknown method(s) {unknown}; valid methods: {', '.join(METHODS)}")
+    default = DEFAULTS[args.env]
+    if args.ifp_env_steps is not None:
+        if args.ifp_env_steps < 1:
+            raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
+        default = dataclasses.replace(default, ifp=dataclasses.replace(default.ifp, total_env_steps=args.ifp_env_steps))
     return dataclasses.replace(
-        DEFAULTS[args.env], seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick,
+        default, seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick,
         physics=args.physics, encoder=args.encoder, num_patterns=args.num_patterns, progress=args.progress,
     )  # fmt: skip
 

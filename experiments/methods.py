@@ -28,7 +28,7 @@ from talar_jax.baselines import (
 from talar_jax.conditioning import Conditioner, InstructionSampler, InstructionTableConditioner
 from talar_jax.language import EmbeddingCache, load_instructions
 from talar_jax.networks import make_ppo_networks
-from talar_jax.optim import fit_with_adam
+from talar_jax.optim import AdamFit, fit_seeds
 from talar_jax.sharding import shard_seeds
 from talar_jax.stages import StageResult, run_stage, stable_hash
 from talar_jax.talar import (
@@ -97,6 +97,8 @@ def load_tree(path: Path) -> Any:
 class FrozenTableConditioner(InstructionTableConditioner):
     """A per-seed instruction table that PPO carries in ``params["conditioner"]`` but never changes."""
 
+    trainable = False
+
     def init(self, rng: jax.Array) -> Any:
         del rng
         return {"table": self.table}
@@ -138,14 +140,14 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
 
     def body(stage_dir: Path) -> dict[str, Any]:
         targets = jnp.asarray(targets_fn(stage_dir), jnp.float32)
-        train = jax.jit(jax.vmap(make_train_translator(config.talar, spec), in_axes=(0, 0, None)))
-        params, losses = train(ctx.seed_keys(name), targets, data)
+        fit = make_train_translator(config.talar, spec)
+        params, losses = fit_seeds(fit, ctx.seed_keys(name), targets, data, in_axes=(0, None), label=name,
+                                   progress=config.progress)  # fmt: skip
         tables = np.asarray(jax.jit(jax.vmap(make_translate(config.talar, spec), in_axes=(0, None)))(
             params, data.sentence_embeddings))  # fmt: skip
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "tables.npy", tables)
         quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
-        losses = np.asarray(losses)
         return {
             "translator_loss_end": losses[:, -max(1, losses.shape[1] // 20) :].mean(1).tolist(),
             "tl_quality": {k: [q[k] for q in quality] for k in quality[0]},
@@ -161,10 +163,10 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
     rg_key = stable_hash("task_language", ctx.upstream_key, cache.key, config.talar, config.seeds, config.seed)
 
     def rg_body(stage_dir: Path) -> dict[str, Any]:
-        train = jax.jit(jax.vmap(make_train_task_language(config.talar, cache.vocab_size), in_axes=(0, None)))
-        params, losses = train(ctx.seed_keys("task_language"), data)
+        fit = make_train_task_language(config.talar, cache.vocab_size)
+        params, losses = fit_seeds(fit, ctx.seed_keys("task_language"), data, label="talar/referential game",
+                                   progress=config.progress)  # fmt: skip
         save_tree(stage_dir / "params.msgpack", params)
-        losses = np.asarray(losses)
         np.save(stage_dir / "losses.npy", losses)
         window = max(1, losses.shape[1] // 20)
         return {"rg_loss_start": losses[:, :window].mean(1).tolist(),
@@ -200,11 +202,11 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
     gla_key = stable_hash("gla", ctx.upstream_key, config.talar, ctx.seeds, config.seed)
 
     def gla_body(stage_dir: Path) -> dict[str, Any]:
-        train = make_train_gla(size, obs, config.talar.rg_steps, config.talar.batch_size, config.talar.rg_learning_rate)
-        params, losses = jax.jit(jax.vmap(train, in_axes=(0, None, None)))(
-            ctx.seed_keys("gla"), data.states, data.final_states)  # fmt: skip
+        fit = make_train_gla(size, obs, config.talar.rg_steps, config.talar.batch_size, config.talar.rg_learning_rate)
+        params, losses = fit_seeds(fit, ctx.seed_keys("gla"), data.states, data.final_states, label="gla/autoencoder",
+                                   progress=config.progress)  # fmt: skip
         save_tree(stage_dir / "params.msgpack", params)
-        return {"reconstruction_mse_end": np.asarray(losses)[:, -100:].mean(1).tolist()}
+        return {"reconstruction_mse_end": losses[:, -100:].mean(1).tolist()}
 
     gla = run_stage(config.out, "gla/autoencoder", gla_key, gla_body)
 
@@ -233,17 +235,18 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> Metho
     key = stable_hash(name, ctx.upstream_key, ctx.cache.key, config.ifp.hidden_sizes, config.talar, ctx.seeds)
 
     def bc_body(stage_dir: Path) -> dict[str, Any]:
-        train = make_behaviour_cloning(ctx, conditioner, steps=config.talar.translator_steps)
-        params, losses = jax.jit(jax.vmap(train))(ctx.seed_keys(name))
+        fit = make_behaviour_cloning(ctx, conditioner, steps=config.talar.translator_steps)
+        params, losses = fit_seeds(fit, ctx.seed_keys(name), label=f"{name}/behaviour cloning",
+                                   progress=config.progress)  # fmt: skip
         save_tree(stage_dir / "params.msgpack", params)
-        return {"bc_nll_end": np.asarray(losses)[:, -100:].mean(1).tolist()}
+        return {"bc_nll_end": losses[:, -100:].mean(1).tolist()}
 
     stage = run_stage(config.out, f"{name}/behaviour_cloning", key, bc_body)
     return MethodSetup(conditioner, load_tree(stage.path / "params.msgpack"), stage.key, None, stage.summary)
 
 
-def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: int) -> Callable:
-    """``train(rng) -> ({"policy", "conditioner"}, losses)``: maximise log pi(a_i | s_i, enc(L_N)) on the dataset."""
+def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: int) -> AdamFit:
+    """``fit(rng) -> ({"policy", "conditioner"}, losses)``: maximise log pi(a_i | s_i, enc(L_N)) on the dataset."""
     config, dataset = ctx.config, ctx.dataset
     env = ctx.env
     networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, config.ifp.hidden_sizes)
@@ -257,12 +260,11 @@ def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: 
         dist = networks.policy.apply(params["policy"], jnp.concatenate([states[rows], cond], -1))
         return -networks.distribution.log_prob(dist, actions[rows]).mean()
 
-    def train(rng):
-        rng_policy, rng_conditioner, rng_steps = jax.random.split(rng, 3)
-        params = {"policy": networks.init(rng_policy)["policy"], "conditioner": conditioner.init(rng_conditioner)}
-        return fit_with_adam(loss_fn, params, config.talar.translator_learning_rate, rng_steps, steps)
+    def init_params(rng):
+        rng_policy, rng_conditioner = jax.random.split(rng)
+        return {"policy": networks.init(rng_policy)["policy"], "conditioner": conditioner.init(rng_conditioner)}
 
-    return train
+    return AdamFit(init_params, loss_fn, config.talar.translator_learning_rate, steps)
 
 
 METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {

@@ -2,11 +2,13 @@
 
 ``python -m experiments.oracle --env clevr --out runs/oracle-clevr [--collector policy|scripted] [--quick]``
 
-Collectors (default per env): ``policy`` trains a goal-conditioned PPO oracle (kitchen); ``scripted`` (CLEVR)
-pushes only the goal's source ball, greedily towards the target point with epsilon-random directions. The
-original collected CLEVR data in its ``collect`` action space (8 pushes of the source ball), so s_i -> s_T
-shows which ball the instruction names; a 40-action PPO oracle instead moves non-goal balls in most episodes,
-which leaves the referential game with ambiguous state pairs.
+Collectors: ``policy`` trains a goal-conditioned PPO oracle (the paper's way); ``scripted`` (the default of both
+envs) needs no training. On CLEVR it pushes only the goal's source ball, greedily towards the target point with
+epsilon-random directions: the original collected CLEVR data in its ``collect`` action space (8 pushes of the
+source ball), so s_i -> s_T shows which ball the instruction names, while a 40-action PPO oracle moves non-goal
+balls in most episodes, which leaves the referential game with ambiguous state pairs. On FrankaKitchen it is
+the IK-waypoint controller of ``envs/kitchen/scripted.py`` with Gaussian action noise: it covers all six
+sub-tasks, where the PPO oracle here never learned the microwave (0 %), leaving it out of the dataset.
 
 Writes under ``--out``: ``ppo/`` (policy collector: config.json, orbax checkpoints, metrics.jsonl,
 progress.json; a killed run resumes from its last chunk), ``oracle.json`` (success per goal on train/test
@@ -27,6 +29,7 @@ import tyro
 
 import envs
 from envs.clevr.scripted import greedy_push
+from envs.kitchen.scripted import noisy_scripted_action
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler
 from talar_jax.dataset import TaskDataset, collect_task_dataset
@@ -40,8 +43,19 @@ ORACLE_DEFAULTS: dict[str, dict[str, float]] = {
     "kitchen": {"total_env_steps": 10_000_000, "num_tuples": 50_000, "target_success": 0.7},
 }
 COLLECTORS: tuple[str, ...] = ("policy", "scripted")
-DEFAULT_COLLECTOR: dict[str, str] = {"clevr": "scripted", "kitchen": "policy"}
+DEFAULT_COLLECTOR: dict[str, str] = {"clevr": "scripted", "kitchen": "scripted"}
 SCRIPTED_EPSILON = 0.2  # random-direction probability of the scripted CLEVR collector
+SCRIPTED_NOISE = 0.1  # std of the Gaussian action noise of the scripted kitchen collector
+
+
+def scripted_collector(env_name: str) -> tuple[dict[str, Any], Any, dict[str, float]]:
+    """(env options, ``act(state, rng) -> action``, its settings) of an env's scripted collector."""
+    if env_name == "clevr":
+        return {"action_type": "collect"}, lambda state, rng: greedy_push(state, rng, SCRIPTED_EPSILON), {
+            "epsilon": SCRIPTED_EPSILON}  # fmt: skip
+    if env_name == "kitchen":
+        return {}, lambda state, rng: noisy_scripted_action(state, rng, SCRIPTED_NOISE), {"noise": SCRIPTED_NOISE}
+    raise ValueError(f"no scripted collector for env {env_name!r}; use --collector policy")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +67,8 @@ class OracleArgs:
     out: Path = Path("runs/oracle")
     """Output directory (resumed when it already holds a run)."""
     collector: str | None = None
-    """'policy' (train a goal-conditioned PPO oracle) or 'scripted' (CLEVR only: greedy source-ball pushes in the
-    original's collect action space); default per env: clevr scripted, kitchen policy."""
+    """'policy' (train a goal-conditioned PPO oracle) or 'scripted' (clevr: greedy source-ball pushes in the
+    original's collect action space; kitchen: the IK-waypoint controller with action noise); default: scripted."""
     physics: str = "c"
     """Physics backend: 'c' (MuJoCo C, fast on CPU) or 'mjx'."""
     seed: int = 0
@@ -98,8 +112,6 @@ def collector_of(args: OracleArgs) -> str:
     collector = args.collector or DEFAULT_COLLECTOR.get(args.env, "policy")
     if collector not in COLLECTORS:
         raise ValueError(f"unknown collector {collector!r}; valid: {', '.join(COLLECTORS)}")
-    if collector == "scripted" and args.env != "clevr":
-        raise ValueError(f"the scripted collector exists for clevr only, not {args.env!r}; use --collector policy")
     return collector
 
 
@@ -131,18 +143,17 @@ def run(args: OracleArgs) -> float:
         raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
     defaults = ORACLE_DEFAULTS[args.env]
     collector = collector_of(args)
-    options = {"action_type": "collect"} if collector == "scripted" else {}
-    env = envs.make(args.env, physics=args.physics, **options)
-    conditioner = GoalOneHotConditioner(env.num_goals)
     if collector == "policy":
+        env = envs.make(args.env, physics=args.physics)
+        conditioner = GoalOneHotConditioner(env.num_goals)
         summary, seed_params = _train_policy(args, env, conditioner, defaults)
         behaviour = None
     else:
-        summary = {"collector": "scripted", "epsilon": SCRIPTED_EPSILON, "env_steps": 0}
+        options, behaviour, settings = scripted_collector(args.env)
+        env = envs.make(args.env, physics=args.physics, **options)
+        conditioner = GoalOneHotConditioner(env.num_goals)
+        summary = {"collector": "scripted", **settings, "env_steps": 0}
         seed_params = None
-
-        def behaviour(state, rng):
-            return greedy_push(state, rng, SCRIPTED_EPSILON)
 
     summary = {"env": args.env, "physics": args.physics, **summary}
     write_json_atomic(args.out / "oracle.json", summary)

@@ -37,6 +37,8 @@ class PatternsArgs:
     """Physics backend (default: the faster one for this device)."""
     encoder: str | None = None
     """Local BERT folder (default: all-MiniLM-L6-v2)."""
+    ifp_env_steps: int | None = None
+    """IFP env steps per seed, method and pattern count (default: 2M, the paper's)."""
     progress: bool = True
     """Progress output."""
 
@@ -46,7 +48,7 @@ def patterns(args: PatternsArgs) -> str:
     for k in args.patterns:
         final = compare(CompareArgs(env="clevr", methods=args.methods, seeds=args.seeds, out=args.out,
                                     quick=args.quick, physics=args.physics, encoder=args.encoder, num_patterns=k,
-                                    progress=args.progress))  # fmt: skip
+                                    ifp_env_steps=args.ifp_env_steps, progress=args.progress))  # fmt: skip
         for label, per_split in final.items():
             rates = np.asarray(per_split["train"]) * 100
             rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")

@@ -140,12 +140,32 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
     return run_stage(config.out, f"{run_name(config)}/ifp", key, body)
 
 
+def _eval_rows(ifp: StageResult) -> list[dict[str, Any]]:
+    rows = [json.loads(line) for line in (ifp.path / "ppo" / "metrics.jsonl").read_text().splitlines()]
+    return [r for r in rows if "eval/train/success_per_seed" in r]
+
+
 def learning_curve(ifp: StageResult) -> LearningCurve:
     """Success per seed over env steps from the IFP's ``metrics.jsonl``."""
-    rows = [json.loads(line) for line in (ifp.path / "ppo" / "metrics.jsonl").read_text().splitlines()]
-    rows = [r for r in rows if "eval/train/success_per_seed" in r]
+    rows = _eval_rows(ifp)
     steps = np.array([r["train/env_steps"] for r in rows])
     return LearningCurve(steps, {s: np.array([r[f"eval/{s}/success_per_seed"] for r in rows]).T for s in SPLITS})
+
+
+def final_success_per_goal(ifp: StageResult) -> dict[str, list[float | None]]:
+    """split -> success per goal of the last evaluation, pooled over seeds (None: no episode of that goal)."""
+    last = _eval_rows(ifp)[-1]
+    return {s: last[f"eval/{s}/success_per_goal"] for s in SPLITS}
+
+
+def per_goal_table(per_goal: dict[str, list[float | None]], names: list[str]) -> str:
+    """Markdown table goal -> success (%) per split."""
+    lines = ["| sub-task | " + " | ".join(f"{s} instructions (%)" for s in per_goal) + " |",
+             "|---|" + "---|" * len(per_goal)]  # fmt: skip
+    for goal, name in enumerate(names):
+        cells = ["-" if per_goal[s][goal] is None else f"{100 * per_goal[s][goal]:.1f}" for s in per_goal]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def goal_names(env: str, num_goals: int) -> list[str]:
@@ -173,10 +193,15 @@ def write_report(
     table += "".join(f"\n- TL quality `{k}`: {np.mean(v):.3f} (per seed {np.round(v, 3).tolist()})" for k, v in
                      quality.items())  # fmt: skip
     table += "".join(f"\n- stage `{name}`: {stage.seconds:.0f} s" for name, stage in stages.items()) + "\n"
+    per_goal = final_success_per_goal(stages["ifp"])
+    if cache.num_goals <= 10:  # kitchen's six sub-tasks (CLEVR's 80 goals stay in summary.json)
+        table += "\n#### Final success per sub-task (pooled over seeds)\n\n"
+        table += per_goal_table(per_goal, goal_names(config.env, cache.num_goals))
     (folder / "results.md").write_text(table)
     summary = {
         "method": config.method,
         "final_success": {s: v.tolist() for s, v in final.items()},
+        "final_success_per_goal": per_goal,
         "method_summary": setup.summary,
         "stage_seconds": {name: stage.seconds for name, stage in stages.items()},
     }

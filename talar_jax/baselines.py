@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from talar_jax.optim import fit_with_adam
+from talar_jax.optim import AdamFit
 from talar_jax.task_language import ReluMLP
 
 
@@ -80,22 +80,19 @@ class LatentActionAutoencoder(nn.Module):
 
 
 def make_train_gla(latent_size: int, observation_size: int, steps: int, batch_size: int, learning_rate: float):
-    """Returns ``train(rng, states, final_states) -> (params, losses)``: reconstruction MSE of s_T."""
+    """The auto-encoder as an ``AdamFit``: ``fit(rng, states, final_states) -> (params, losses)`` (MSE of s_T)."""
     model = LatentActionAutoencoder(latent_size, observation_size)
 
-    def train(rng, states, final_states):
-        rng_init, rng_steps = jax.random.split(rng)
-        params = model.init(rng_init, states[:1], final_states[:1])
+    def init_params(rng, states, final_states):
+        return model.init(rng, states[:1], final_states[:1])
 
-        def loss_fn(params, rng_step):
-            rng_rows, rng_noise = jax.random.split(rng_step)
-            rows = jax.random.randint(rng_rows, (batch_size,), 0, states.shape[0])
-            prediction, _ = model.apply(params, states[rows], final_states[rows], rng_noise)
-            return jnp.mean((prediction - final_states[rows]) ** 2)
+    def loss_fn(params, rng_step, states, final_states):
+        rng_rows, rng_noise = jax.random.split(rng_step)
+        rows = jax.random.randint(rng_rows, (batch_size,), 0, states.shape[0])
+        prediction, _ = model.apply(params, states[rows], final_states[rows], rng_noise)
+        return jnp.mean((prediction - final_states[rows]) ** 2)
 
-        return fit_with_adam(loss_fn, params, learning_rate, rng_steps, steps)
-
-    return train
+    return AdamFit(init_params, loss_fn, learning_rate, steps)
 
 
 def make_gla_codes(latent_size: int, observation_size: int):

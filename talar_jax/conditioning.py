@@ -23,11 +23,13 @@ def check_split(split: str) -> str:
 class Conditioner(abc.ABC):
     """Chooses an instruction for a new episode of a goal and turns it into a (size,) vector.
 
-    ``sample`` and ``apply`` are pure and jit-able; ``split`` is static. ``init`` returns trainable
-    parameters (``{}`` if none) that PPO optimises jointly with the policy and passes back to ``apply``.
+    ``sample`` and ``apply`` are pure and jit-able; ``split`` is static. ``init`` returns the conditioner's
+    parameters (``{}`` if none), which PPO passes back to ``apply`` and, when ``trainable``, optimises jointly
+    with the policy; a frozen conditioner's parameters (e.g. a translated TL table) get no gradient or Adam state.
     """
 
     size: int
+    trainable: bool = True
 
     def init(self, rng: jax.Array) -> Any:
         """Trainable parameters (a pytree; ``{}`` when the conditioner has none)."""

@@ -201,7 +201,7 @@ class _Learner:
         env_carry = jax.vmap(self.env.reset)(jax.random.split(rng_env, self.config.num_envs))
         return TrainingState(
             params=params,
-            opt_state=self.optimizer.init(params),
+            opt_state=self.optimizer.init(self._trainable(params)),
             normalizer=init_return_normalizer(self.config.num_envs),
             env=env_carry,
             rng=rng,
@@ -209,12 +209,21 @@ class _Learner:
             updates=jnp.zeros((), jnp.int32),
         )
 
+    def _trainable(self, params: dict[str, Any]) -> dict[str, Any]:
+        """The parameters PPO optimises: all of them, or all but a frozen conditioner's."""
+        return params if self.conditioner.trainable else {k: v for k, v in params.items() if k != "conditioner"}
+
     def _minibatch_step(self, carry: tuple[Any, Any], batch: Minibatch):
         params, opt_state = carry
-        (_, metrics), grads = jax.value_and_grad(self._loss, has_aux=True)(params, batch)
-        updates, opt_state = self.optimizer.update(grads, opt_state, params)
+        trainable = self._trainable(params)
+
+        def loss(trainable):
+            return self._loss({**params, **trainable}, batch)
+
+        (_, metrics), grads = jax.value_and_grad(loss, has_aux=True)(trainable)
+        updates, opt_state = self.optimizer.update(grads, opt_state, trainable)
         metrics["losses/grad_norm"] = optax.global_norm(grads)
-        return (optax.apply_updates(params, updates), opt_state), metrics
+        return ({**params, **optax.apply_updates(trainable, updates)}, opt_state), metrics
 
     def _epoch(self, carry: tuple[Any, Any], inputs: tuple[jax.Array, Minibatch]):
         rng, batch = inputs

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from talar_jax.optim import fit_with_adam
+from talar_jax.optim import AdamFit
 from talar_jax.task_language import (
     Receiver,
     TaskLanguageGenerator,
@@ -139,8 +139,8 @@ def _generator(config: TalarConfig) -> TaskLanguageGenerator:
     return TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
 
 
-def make_train_task_language(config: TalarConfig, vocab_size: int):
-    """Returns ``train(rng, data) -> (params, losses)`` for the referential game (vmap it over seeds).
+def make_train_task_language(config: TalarConfig, vocab_size: int) -> AdamFit:
+    """The referential game as an ``AdamFit`` over ``data``: ``fit(rng, data) -> (params, losses)`` (vmap over seeds).
 
     ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step.
     """
@@ -153,21 +153,15 @@ def make_train_task_language(config: TalarConfig, vocab_size: int):
         logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])
 
-    def train(rng: jax.Array, data: TaskLanguageData):
-        rng_generator, rng_receiver, rng_steps = jax.random.split(rng, 3)
+    def init_params(rng: jax.Array, data: TaskLanguageData):
+        rng_generator, rng_receiver = jax.random.split(rng)
         obs = data.states[:1]
-        params = {
+        return {
             "generator": generator.init(rng_generator, obs, obs, None),
-            "receiver": receiver.init(
-                rng_receiver, jnp.zeros((1, config.spec.size)), data.prefix_embeddings[:1]
-            ),
+            "receiver": receiver.init(rng_receiver, jnp.zeros((1, config.spec.size)), data.prefix_embeddings[:1]),
         }
 
-        return fit_with_adam(
-            lambda p, k: loss_fn(p, k, data), params, config.rg_learning_rate, rng_steps, config.rg_steps
-        )
-
-    return train
+    return AdamFit(init_params, loss_fn, config.rg_learning_rate, config.rg_steps)
 
 
 def make_generate_task_language(config: TalarConfig):
@@ -180,8 +174,8 @@ def make_generate_task_language(config: TalarConfig):
     return generate
 
 
-def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = None):
-    """Returns ``train(rng, targets, data) -> (translator_params, losses)`` (vmap it over seeds).
+def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = None) -> AdamFit:
+    """The translator as an ``AdamFit``: ``fit(rng, targets, data) -> (translator_params, losses)`` (vmap over seeds).
 
     ``targets`` (N, |L|) is the language each tuple's instruction must translate to: for TALAR the frozen
     generator's deterministic TL of the tuple (Algorithm 2, see ``make_generate_task_language``); baselines
@@ -190,19 +184,16 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
     spec = spec if spec is not None else config.spec
     translator = Translator(spec, config.translator_hidden)
 
-    def train(rng: jax.Array, targets: jax.Array, data: TaskLanguageData):
-        targets = jax.lax.stop_gradient(targets)
-        rng_init, rng_steps = jax.random.split(rng)
-        params = translator.init(rng_init, data.sentence_embeddings[:1])
+    def init_params(rng: jax.Array, targets: jax.Array, data: TaskLanguageData):
+        del targets
+        return translator.init(rng, data.sentence_embeddings[:1])
 
-        def loss_fn(params, rng_step):
-            rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
-            logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
-            return translator_loss(spec, logits, targets[rows])
+    def loss_fn(params, rng_step, targets: jax.Array, data: TaskLanguageData):
+        rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
+        logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
+        return translator_loss(spec, logits, jax.lax.stop_gradient(targets[rows]))
 
-        return fit_with_adam(loss_fn, params, config.translator_learning_rate, rng_steps, config.translator_steps)
-
-    return train
+    return AdamFit(init_params, loss_fn, config.translator_learning_rate, config.translator_steps)
 
 
 def make_translate(config: TalarConfig, spec: TaskLanguageSpec | None = None):

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from experiments import clevr, kitchen
-from experiments.compare import CompareArgs, compare
+from experiments.compare import CompareArgs, base_config, compare
 
 TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
 QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
 
 
-def _check_run(folder: Path, seeds: int, num_instructions: int, tl_size: int = 14):
+def _check_run(folder: Path, seeds: int, num_instructions: int, num_goals: int, tl_size: int = 14):
     summary = json.loads((folder / "talar" / "summary.json").read_text())
     for split in ("train", "test"):
         rates = np.asarray(summary["final_success"][split])
@@ -32,6 +32,9 @@ def _check_run(folder: Path, seeds: int, num_instructions: int, tl_size: int = 1
     assert rows and all(np.isfinite(r["losses/policy"]) for r in rows)
     assert "| TALAR |" in (folder / "talar" / "results.md").read_text()
     assert (folder / "oracle" / "dataset" / "task_dataset.npz").exists()
+    for split, per_goal in summary["final_success_per_goal"].items():  # the last evaluation, per goal
+        assert len(per_goal) == num_goals and all(v is None or 0 <= v <= 1 for v in per_goal), split
+        assert per_goal == [r for r in rows if "eval/train/success_per_goal" in r][-1][f"eval/{split}/success_per_goal"]
     return summary
 
 
@@ -44,7 +47,7 @@ def clevr_run(tmp_path_factory):
 
 def test_clevr_quick_end_to_end(clevr_run, capsys):
     out, summary = clevr_run
-    _check_run(out, seeds=2, num_instructions=1440)
+    _check_run(out, seeds=2, num_instructions=1440, num_goals=80)
     assert summary["method"] == "talar"
     # Running the same command again reuses every stage and reports the same result.
     again = clevr.main([*QUICK, "--out", str(out)])
@@ -63,7 +66,11 @@ def test_compare_quick_runs_baselines_on_shared_stages(clevr_run):
 
 def test_kitchen_quick_end_to_end(tmp_path):
     kitchen.main([*QUICK, "--out", str(tmp_path)])
-    _check_run(tmp_path, seeds=2, num_instructions=120)
+    _check_run(tmp_path, seeds=2, num_instructions=120, num_goals=6)
+    results = (tmp_path / "talar" / "results.md").read_text()
+    assert "Final success per sub-task" in results and "| microwave |" in results and "| kettle |" in results
+    oracle = json.loads((tmp_path / "oracle" / "oracle.json").read_text())
+    assert oracle["collector"] == "scripted"  # kitchen's default collector covers all six sub-tasks
 
 
 def test_bad_experiment_options_fail_clearly(tmp_path):
@@ -73,3 +80,6 @@ def test_bad_experiment_options_fail_clearly(tmp_path):
         kitchen.main(["--num-patterns", "3", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="valid methods"):
         compare(CompareArgs(methods=("talar", "bogus"), out=tmp_path))
+    with pytest.raises(ValueError, match="--ifp-env-steps must be >= 1"):
+        compare(CompareArgs(ifp_env_steps=0, out=tmp_path))
+    assert base_config(CompareArgs(ifp_env_steps=300_000, out=tmp_path)).ifp.total_env_steps == 300_000

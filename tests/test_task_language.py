@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from talar_jax.optim import AdamFit, fit_seeds
 from talar_jax.talar import (
     TalarConfig,
     TaskLanguageData,
@@ -98,7 +99,7 @@ def test_talar_learns_a_task_language_that_separates_goals_on_a_toy_task():
     data, sentence_goal, is_train, vocab = _toy_data()
     config = TalarConfig(rg_steps=1500, translator_steps=800, batch_size=128)
     seeds = jax.random.split(jax.random.key(0), 2)
-    params, rg_losses = jax.jit(jax.vmap(make_train_task_language(config, vocab), in_axes=(0, None)))(seeds, data)
+    params, rg_losses = fit_seeds(make_train_task_language(config, vocab), seeds, data, chunks=3, progress=False)
     assert rg_losses.shape == (2, config.rg_steps)
     # Predicting the goal word needs the TL: chance is log(4) for that half of the tokens.
     final = np.asarray(rg_losses[:, -200:].mean(1))
@@ -133,3 +134,25 @@ def test_task_language_quality_on_a_hand_built_table():
     assert quality["test_matches_train"] == pytest.approx(2 / 3)  # goals 0 and 2 match, goal 1 does not
     assert quality["decodable_train"] == pytest.approx(4 / 5)  # code b names goal 1 (2 votes to 1)
     assert quality["decodable_test"] == pytest.approx(1 / 3)  # only goal 0's test instruction is decoded
+
+
+def test_chunked_fit_equals_one_scan_and_prints_progress(capsys):
+    """fit_seeds' chunks (with their progress lines) give the same result as one scan: step keys are fold_in(i)."""
+
+    def loss(params, rng, centres):
+        noise = jax.random.normal(rng, params.shape)
+        return jnp.sum((params - centres - 0.1 * noise) ** 2)
+
+    fit = AdamFit(lambda rng, centres: jax.random.normal(rng, centres.shape), loss, 0.2, steps=60)
+    keys = jax.random.split(jax.random.key(3), 2)
+    centres = jnp.array([[1.0, -2.0], [3.0, 0.5]])
+    params, losses = fit_seeds(fit, keys, centres, in_axes=(0,), label="toy", chunks=3)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("toy: step")]
+    assert len(lines) == 3 and "step 60/60" in lines[-1]
+    whole_params, whole_losses = jax.vmap(fit)(keys, centres)
+    np.testing.assert_allclose(params, whole_params, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(losses, whole_losses, rtol=1e-5, atol=1e-6)
+    assert losses.shape == (2, 60) and np.all(losses[:, -5:].mean(1) < 0.1 * losses[:, :5].mean(1))
+    np.testing.assert_allclose(params, centres, atol=0.2)
+    with pytest.raises(ValueError, match="1 inputs but 2 in_axes"):
+        fit_seeds(fit, keys, centres, in_axes=(0, None))

@@ -177,3 +177,16 @@ def scripted_action(obs: jax.Array, goal: jax.Array, step: jax.Array) -> jax.Arr
     fraction = jnp.clip((step - starts[k] + 1) / jnp.maximum(ends_goal[k] - starts[k], 1), 0.0, 1.0)
     target = previous + fraction * (waypoints[goal, k] - previous)
     return jnp.clip(GAIN * (target - obs[: tasks.NUM_ROBOT_JOINTS]) + feedforward[goal, k], -1.0, 1.0)
+
+
+def noisy_scripted_action(state, rng: jax.Array, noise_scale: float = 0.1) -> jax.Array:
+    """The scripted action for the state's own sub-task plus Gaussian exploration noise (one env, jit-able).
+
+    Reads the step count from ``state.info["steps"]``, which ``envs.wrappers.EpisodeWrapper`` (the time limit)
+    adds. Used to collect a task dataset that covers all six sub-tasks.
+    """
+    if "steps" not in state.info:
+        raise ValueError("noisy_scripted_action needs state.info['steps']: wrap the env in envs.wrappers.EpisodeWrapper")
+    action = scripted_action(state.obs, state.task.goal, state.info["steps"])
+    noise = noise_scale * jax.random.normal(rng, action.shape, action.dtype)
+    return jnp.clip(action + noise, -1.0, 1.0)
