@@ -143,17 +143,13 @@ def run(args: OracleArgs) -> float:
         raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
     defaults = ORACLE_DEFAULTS[args.env]
     collector = collector_of(args)
+    options, behaviour, settings = scripted_collector(args.env) if collector == "scripted" else ({}, None, {})
+    env = envs.make(args.env, physics=args.physics, **options)
+    conditioner = GoalOneHotConditioner(env.num_goals)
     if collector == "policy":
-        env = envs.make(args.env, physics=args.physics)
-        conditioner = GoalOneHotConditioner(env.num_goals)
         summary, seed_params = _train_policy(args, env, conditioner, defaults)
-        behaviour = None
     else:
-        options, behaviour, settings = scripted_collector(args.env)
-        env = envs.make(args.env, physics=args.physics, **options)
-        conditioner = GoalOneHotConditioner(env.num_goals)
-        summary = {"collector": "scripted", **settings, "env_steps": 0}
-        seed_params = None
+        summary, seed_params = {"collector": "scripted", **settings, "env_steps": 0}, None
 
     summary = {"env": args.env, "physics": args.physics, **summary}
     write_json_atomic(args.out / "oracle.json", summary)
