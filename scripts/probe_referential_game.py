@@ -1,6 +1,6 @@
 """Probe the referential game on a task dataset (one seed): how much goal information the TL carries.
 
-``python scripts/probe_referential_game.py runs/clevr/oracle/dataset --steps 20000 --lr 3e-3 --temperature 2``
+``python scripts/probe_referential_game.py runs/clevr/oracle/dataset --seeds 3 --temperature 4 --no-reference``
 
 Prints the RG loss against two receivers trained the same way on the same batches: one given no message (zeros,
 the loss floor of an ignored TL) and one given the true goal one-hot (the best a message can do); then how often
@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 
 from talar_jax.dataset import TaskDataset  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
-from talar_jax.optim import fit_with_adam  # noqa: E402
+from talar_jax.optim import fit_seeds, fit_with_adam  # noqa: E402
 from talar_jax.talar import (  # noqa: E402
     TalarConfig,
     decodable_fraction,
@@ -60,30 +60,41 @@ def main() -> None:
     parser.add_argument("--lr", type=float, default=3e-3)
     parser.add_argument("--temperature", type=float, default=2.0)
     parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--receiver-hidden", type=int, nargs="*", default=[256], help="receiver hidden layers")
+    parser.add_argument("--seeds", type=int, default=1, help="generator seeds (vmapped); quality is per seed")
+    parser.add_argument("--no-reference", action="store_true", help="skip the no-message / goal-told receivers")
     args = parser.parse_args()
     cache = build_cache(args.env, progress=False)
     dataset = TaskDataset.load(args.dataset)
     data = make_task_language_data(dataset, cache)
     config = TalarConfig(rg_learning_rate=args.lr, gumbel_temperature=args.temperature, batch_size=args.batch_size,
-                         rg_steps=args.steps, translator_steps=max(1, args.steps // 2))  # fmt: skip
+                         rg_steps=args.steps, translator_steps=max(1, args.steps // 2),
+                         receiver_hidden=tuple(args.receiver_hidden))  # fmt: skip
     goals, num_goals = jnp.asarray(dataset.goal_ids), cache.num_goals
-    for informed in (False, True):
+    for informed in () if args.no_reference else (False, True):
         loss = reference_receiver_loss(data, goals, num_goals, cache.vocab_size, config, informed)
         print(f"receiver given {'the goal' if informed else 'no message'}: RG loss {loss:.3f}")
     start = time.perf_counter()
-    params, losses = jax.jit(make_train_task_language(config, cache.vocab_size))(jax.random.PRNGKey(0), data)
-    losses = np.asarray(losses)
-    print(f"TALAR generator: RG loss {losses[-max(1, args.steps // 20):].mean():.3f} "
+    keys = jax.random.split(jax.random.PRNGKey(0), args.seeds)
+    params, losses = fit_seeds(make_train_task_language(config, cache.vocab_size), keys, data, label="RG")
+    print(f"TALAR generator: RG loss per seed {np.round(losses[:, -max(1, args.steps // 20):].mean(1), 3)} "
           f"({time.perf_counter() - start:.0f} s)")  # fmt: skip
-    generate = jax.jit(make_generate_task_language(config))
+    generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))
     codes = np.asarray(generate(params["generator"], data.states, data.final_states)).round().astype(np.int8)
-    every = np.ones(len(codes), bool)
-    decoded = decodable_fraction(codes, dataset.goal_ids, every, every)
-    distinct = len(np.unique(codes, axis=0))
-    print(f"generator TL: {distinct} distinct codes; decodes the tuple's goal for {decoded:.3f} of tuples")
-    translator, _ = jax.jit(make_train_translator(config))(jax.random.PRNGKey(1), jnp.asarray(codes, jnp.float32), data)
-    table = np.asarray(jax.jit(make_translate(config))(translator, data.sentence_embeddings))
-    print("translated table:", task_language_quality(table, cache.goal_ids, cache.is_train))
+    every = np.ones(codes.shape[1], bool)
+    for seed in range(args.seeds):
+        decoded = decodable_fraction(codes[seed], dataset.goal_ids, every, every)
+        distinct = len(np.unique(codes[seed], axis=0))
+        print(f"seed {seed} generator TL: {distinct} distinct codes; decodes the tuple's goal for {decoded:.3f}")
+    targets = jnp.asarray(codes, jnp.float32)
+    translator, _ = fit_seeds(make_train_translator(config), keys, targets, data, in_axes=(0, None),
+                              label="translator", progress=False)  # fmt: skip
+    tables = np.asarray(
+        jax.jit(jax.vmap(make_translate(config), in_axes=(0, None)))(translator, data.sentence_embeddings)
+    )
+    for seed in range(args.seeds):
+        quality = task_language_quality(tables[seed], cache.goal_ids, cache.is_train)
+        print(f"seed {seed} translated table:", {k: round(v, 3) for k, v in quality.items()})
 
 
 if __name__ == "__main__":
