@@ -1,4 +1,4 @@
-"""Probe the referential game on a task dataset (one seed): how much goal information the TL carries.
+"""Probe the referential game on a task dataset (one or more seeds): how much goal information the TL carries.
 
 ``python scripts/probe_referential_game.py runs/clevr/oracle/dataset --seeds 3 --temperature 4 --no-reference``
 
