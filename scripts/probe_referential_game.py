@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 
 from talar_jax.dataset import TaskDataset  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
-from talar_jax.optim import fit_seeds, fit_with_adam  # noqa: E402
+from talar_jax.optim import AdamFit, fit_seeds  # noqa: E402
 from talar_jax.talar import (  # noqa: E402
     TalarConfig,
     decodable_fraction,
@@ -46,9 +46,10 @@ def reference_receiver_loss(data, goals, num_goals, vocab_size, config, informed
         logits = receiver.apply(params, message, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])
 
-    params = receiver.init(jax.random.PRNGKey(0), jnp.zeros((1, num_goals)), data.prefix_embeddings[:1])
-    fit = jax.jit(lambda p, k: fit_with_adam(loss_fn, p, config.rg_learning_rate, k, config.rg_steps))
-    _, losses = fit(params, jax.random.PRNGKey(1))
+    def init_params(rng):
+        return receiver.init(rng, jnp.zeros((1, num_goals)), data.prefix_embeddings[:1])
+
+    _, losses = jax.jit(AdamFit(init_params, loss_fn, config.rg_learning_rate, config.rg_steps))(jax.random.PRNGKey(1))
     return float(np.asarray(losses)[-max(1, config.rg_steps // 20) :].mean())
 
 

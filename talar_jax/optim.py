@@ -116,10 +116,3 @@ def fit_seeds(
             print(f"{label}: step {done}/{fit.steps}, loss {recent:.4f} (mean over seeds), "
                   f"{time.perf_counter() - start:.0f} s", flush=True)  # fmt: skip
     return state.params, np.concatenate(losses, axis=1)
-
-
-def fit_with_adam(
-    loss_fn: Callable[[Any, jax.Array], jax.Array], params: Any, learning_rate: float, rng: jax.Array, steps: int
-) -> tuple[Any, jax.Array]:
-    """Minimises ``loss_fn(params, rng_step)`` from ``params`` for ``steps`` steps in one ``lax.scan``."""
-    return AdamFit(lambda _: params, loss_fn, learning_rate, steps)(rng)
