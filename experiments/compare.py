@@ -15,9 +15,10 @@ import tyro
 
 from experiments import clevr, kitchen
 from experiments.methods import METHOD_LABELS, METHODS
-from experiments.pipeline import ExperimentConfig, learning_curve, run, run_name
+from experiments.pipeline import EXPERIMENT_TALAR, ExperimentConfig, learning_curve, run, run_name
 from talar_jax.report import plot_learning_curves, results_table
 from talar_jax.stages import StageResult
+from talar_jax.talar import TalarConfig
 
 DEFAULTS = {"clevr": clevr.DEFAULT, "kitchen": kitchen.DEFAULT}
 
@@ -44,6 +45,8 @@ class CompareArgs:
     """CLEVR: train on the first k sentence patterns (Table 3)."""
     ifp_env_steps: int | None = None
     """IFP env steps per seed and method (default: the env command's, the paper's budget)."""
+    talar: TalarConfig = EXPERIMENT_TALAR
+    """TL size, referential game and translator settings (the env commands' ``--talar.*``, same defaults)."""
     progress: bool = True
     """Progress output."""
 
@@ -60,7 +63,7 @@ def base_config(args: CompareArgs) -> ExperimentConfig:
             raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
         default = dataclasses.replace(default, ifp=dataclasses.replace(default.ifp, total_env_steps=args.ifp_env_steps))
     return dataclasses.replace(
-        default, seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick,
+        default, seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick, talar=args.talar,
         physics=args.physics, encoder=args.encoder, num_patterns=args.num_patterns, progress=args.progress,
     )  # fmt: skip
 

@@ -51,6 +51,7 @@ class MethodSetup:
     key: str
     encodings: np.ndarray | None  # (seeds, S, size) instruction encodings (t-SNE), None when trained by RL
     summary: dict[str, Any]
+    stages: dict[str, StageResult] = dataclasses.field(default_factory=dict)  # the method's own stages, by name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +68,10 @@ class MethodContext:
     @property
     def seeds(self) -> int:
         return self.config.seeds
+
+    def named(self, *stages: StageResult) -> dict[str, StageResult]:
+        """Stages by their folder relative to ``out`` (the keys of ``stage_seconds``)."""
+        return {stage.path.relative_to(self.config.out).as_posix(): stage for stage in stages}
 
     def seed_keys(self, stage: str) -> jax.Array:
         """(seeds,) keys of a stage, stable across processes (crc32 of the name, not Python's hash)."""
@@ -128,10 +133,16 @@ class EncodingLayerConditioner(Conditioner):
         return jnp.where(instruction >= 0, out, 0.0)
 
 
-def _table_setup(ctx: MethodContext, tables: np.ndarray, key: str, summary: dict) -> MethodSetup:
-    tables = np.asarray(tables, np.float32)
+def _table_setup(ctx: MethodContext, *stages: StageResult) -> MethodSetup:
+    """A frozen per-seed table from the last stage's ``tables.npy``; summaries of all ``stages`` merged."""
+    tables = np.asarray(np.load(stages[-1].path / "tables.npy"), np.float32)
+    return _frozen_table_setup(ctx, tables, stages[-1].key, stages)
+
+
+def _frozen_table_setup(ctx: MethodContext, tables: np.ndarray, key: str, stages=()) -> MethodSetup:
     conditioner = FrozenTableConditioner(tables[0], ctx.lookups())
-    return MethodSetup(conditioner, {"conditioner": {"table": tables}}, key, tables, summary)
+    summary = {k: v for stage in stages for k, v in stage.summary.items()}
+    return MethodSetup(conditioner, {"conditioner": {"table": tables}}, key, tables, summary, ctx.named(*stages))
 
 
 def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguageSpec, targets_fn) -> StageResult:
@@ -181,8 +192,7 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
 
     key = stable_hash("translator", rg.key)
     translator = _translator_stage(ctx, "talar/translator", key, config.talar.spec, targets)
-    tables = np.load(translator.path / "tables.npy")
-    return _table_setup(ctx, tables, translator.key, {**rg.summary, **translator.summary})
+    return _table_setup(ctx, rg, translator)
 
 
 def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
@@ -192,7 +202,7 @@ def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
     key = stable_hash("handcrafted", ctx.upstream_key, ctx.cache.key, ctx.config.talar, ctx.seeds, ctx.config.seed)
     stage = _translator_stage(ctx, "handcrafted/translator", key, spec, lambda _: np.broadcast_to(
         goals, (ctx.seeds, *goals.shape)))  # fmt: skip
-    return _table_setup(ctx, np.load(stage.path / "tables.npy"), stage.key, stage.summary)
+    return _table_setup(ctx, stage)
 
 
 def setup_gla(ctx: MethodContext) -> MethodSetup:
@@ -216,14 +226,14 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
 
     spec = TaskLanguageSpec(num_predicates=size, num_arguments=0)
     stage = _translator_stage(ctx, "gla/translator", stable_hash("gla_translator", gla.key), spec, targets)
-    return _table_setup(ctx, np.load(stage.path / "tables.npy"), stage.key, {**gla.summary, **stage.summary})
+    return _table_setup(ctx, gla, stage)
 
 
 def setup_onehot(ctx: MethodContext) -> MethodSetup:
     """One-hot: a unique one-hot per instruction over train and test instructions together."""
     table = one_hot_table(len(ctx.cache.sentences))
-    tables = np.broadcast_to(table, (ctx.seeds, *table.shape))
-    return _table_setup(ctx, tables, stable_hash("onehot", ctx.cache.key), {})
+    tables = np.broadcast_to(np.asarray(table, np.float32), (ctx.seeds, *table.shape))
+    return _frozen_table_setup(ctx, tables, stable_hash("onehot", ctx.cache.key))
 
 
 def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> MethodSetup:
@@ -242,7 +252,8 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> Metho
         return {"bc_nll_end": losses[:, -100:].mean(1).tolist()}
 
     stage = run_stage(config.out, f"{name}/behaviour_cloning", key, bc_body)
-    return MethodSetup(conditioner, load_tree(stage.path / "params.msgpack"), stage.key, None, stage.summary)
+    params = load_tree(stage.path / "params.msgpack")
+    return MethodSetup(conditioner, params, stage.key, None, stage.summary, ctx.named(stage))
 
 
 def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: int) -> AdamFit:

@@ -14,6 +14,8 @@ import numpy as np
 import tyro
 
 from experiments.compare import CompareArgs, compare
+from experiments.pipeline import EXPERIMENT_TALAR
+from talar_jax.talar import TalarConfig
 
 PAPER = {"TALAR": (100.0, 100.0, 99.9), "One-hot": (98.2, 91.8, 86.5), "BERT-binary": (82.0, 60.9, 64.0),
          "BERT-continuous": (95.3, 63.1, 60.7)}  # fmt: skip
@@ -39,6 +41,8 @@ class PatternsArgs:
     """Local BERT folder (default: all-MiniLM-L6-v2)."""
     ifp_env_steps: int | None = None
     """IFP env steps per seed, method and pattern count (default: 2M, the paper's)."""
+    talar: TalarConfig = EXPERIMENT_TALAR
+    """TL size, referential game and translator settings (as ``experiments.clevr``'s ``--talar.*``)."""
     progress: bool = True
     """Progress output."""
 
@@ -48,7 +52,8 @@ def patterns(args: PatternsArgs) -> str:
     for k in args.patterns:
         final = compare(CompareArgs(env="clevr", methods=args.methods, seeds=args.seeds, out=args.out,
                                     quick=args.quick, physics=args.physics, encoder=args.encoder, num_patterns=k,
-                                    ifp_env_steps=args.ifp_env_steps, progress=args.progress))  # fmt: skip
+                                    ifp_env_steps=args.ifp_env_steps, talar=args.talar,
+                                    progress=args.progress))  # fmt: skip
         for label, per_split in final.items():
             rates = np.asarray(per_split["train"]) * 100
             rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")

@@ -253,6 +253,7 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     env = envs.make(config.env, physics=config.physics)
     ctx = MethodContext(config, stages["oracle"].key, make_task_language_data(dataset, cache), cache, dataset, env)
     setup = METHODS[config.method](ctx)
+    stages.update(setup.stages)
     stages["ifp"] = stage_ifp(config, setup, env)
     summary = write_report(config, stages, setup, cache)
     summary["wall_s_this_call"] = time.perf_counter() - start

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tyro
 
 from experiments import clevr, kitchen
 from experiments.compare import CompareArgs, base_config, compare
@@ -31,6 +32,9 @@ def _check_run(folder: Path, seeds: int, num_instructions: int, num_goals: int, 
     rows = [json.loads(line) for line in (folder / "talar" / "ifp" / "ppo" / "metrics.jsonl").read_text().splitlines()]
     assert rows and all(np.isfinite(r["losses/policy"]) for r in rows)
     assert "| TALAR |" in (folder / "talar" / "results.md").read_text()
+    # Every stage's wall-clock is recorded, the method's own stages included.
+    assert set(summary["stage_seconds"]) == {"oracle", "talar/task_language", "talar/translator", "ifp"}
+    assert all(seconds > 0 for seconds in summary["stage_seconds"].values())
     assert (folder / "oracle" / "dataset" / "task_dataset.npz").exists()
     for split, per_goal in summary["final_success_per_goal"].items():  # the last evaluation, per goal
         assert len(per_goal) == num_goals and all(v is None or 0 <= v <= 1 for v in per_goal), split
@@ -83,3 +87,7 @@ def test_bad_experiment_options_fail_clearly(tmp_path):
     with pytest.raises(ValueError, match="--ifp-env-steps must be >= 1"):
         compare(CompareArgs(ifp_env_steps=0, out=tmp_path))
     assert base_config(CompareArgs(ifp_env_steps=300_000, out=tmp_path)).ifp.total_env_steps == 300_000
+    assert base_config(CompareArgs(out=tmp_path)).talar == clevr.DEFAULT.talar  # same TL settings as the command
+    parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"])
+    assert base_config(parsed).talar.gumbel_temperature == 2.0
+
