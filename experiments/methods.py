@@ -50,8 +50,12 @@ class MethodSetup:
     initial_params: dict[str, Any] | None
     key: str
     encodings: np.ndarray | None  # (seeds, S, size) instruction encodings (t-SNE), None when trained by RL
-    summary: dict[str, Any]
     stages: dict[str, StageResult] = dataclasses.field(default_factory=dict)  # the method's own stages, by name
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        """The summaries of the method's stages, merged in order."""
+        return {k: v for stage in self.stages.values() for k, v in stage.summary.items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,15 +138,14 @@ class EncodingLayerConditioner(Conditioner):
 
 
 def _table_setup(ctx: MethodContext, *stages: StageResult) -> MethodSetup:
-    """A frozen per-seed table from the last stage's ``tables.npy``; summaries of all ``stages`` merged."""
+    """A frozen per-seed table from the last stage's ``tables.npy``; all ``stages`` reported."""
     tables = np.asarray(np.load(stages[-1].path / "tables.npy"), np.float32)
     return _frozen_table_setup(ctx, tables, stages[-1].key, stages)
 
 
 def _frozen_table_setup(ctx: MethodContext, tables: np.ndarray, key: str, stages=()) -> MethodSetup:
     conditioner = FrozenTableConditioner(tables[0], ctx.lookups())
-    summary = {k: v for stage in stages for k, v in stage.summary.items()}
-    return MethodSetup(conditioner, {"conditioner": {"table": tables}}, key, tables, summary, ctx.named(*stages))
+    return MethodSetup(conditioner, {"conditioner": {"table": tables}}, key, tables, ctx.named(*stages))
 
 
 def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguageSpec, targets_fn) -> StageResult:
@@ -241,7 +244,7 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> Metho
     conditioner = EncodingLayerConditioner(ctx.cache.sentence_embeddings, ctx.lookups(), config.talar.spec.size, binary)
     name = f"{'pretrained-' if pretrained else ''}bert-{'binary' if binary else 'continuous'}"
     if not pretrained:
-        return MethodSetup(conditioner, None, stable_hash(name, ctx.cache.key), None, {})
+        return MethodSetup(conditioner, None, stable_hash(name, ctx.cache.key), None)
     key = stable_hash(name, ctx.upstream_key, ctx.cache.key, config.ifp.hidden_sizes, config.talar, ctx.seeds)
 
     def bc_body(stage_dir: Path) -> dict[str, Any]:
@@ -253,7 +256,7 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> Metho
 
     stage = run_stage(config.out, f"{name}/behaviour_cloning", key, bc_body)
     params = load_tree(stage.path / "params.msgpack")
-    return MethodSetup(conditioner, params, stage.key, None, stage.summary, ctx.named(stage))
+    return MethodSetup(conditioner, params, stage.key, None, ctx.named(stage))
 
 
 def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: int) -> AdamFit:

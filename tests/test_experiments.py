@@ -90,4 +90,3 @@ def test_bad_experiment_options_fail_clearly(tmp_path):
     assert base_config(CompareArgs(out=tmp_path)).talar == clevr.DEFAULT.talar  # same TL settings as the command
     parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"])
     assert base_config(parsed).talar.gumbel_temperature == 2.0
-
