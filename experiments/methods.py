@@ -177,7 +177,7 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
     rg_key = stable_hash("task_language", ctx.upstream_key, cache.key, config.talar, config.seeds, config.seed)
 
     def rg_body(stage_dir: Path) -> dict[str, Any]:
-        fit = make_train_task_language(config.talar, cache.vocab_size)
+        fit = make_train_task_language(config.talar, cache.vocab_size, cache.max_tokens)
         params, losses = fit_seeds(fit, ctx.seed_keys("task_language"), data, label="talar/referential game",
                                    progress=config.progress)  # fmt: skip
         save_tree(stage_dir / "params.msgpack", params)

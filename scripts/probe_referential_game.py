@@ -41,7 +41,7 @@ def reference_receiver_loss(data, goals, num_goals, vocab_size, config, informed
     receiver = Receiver(vocab_size, config.receiver_hidden)
 
     def loss_fn(params, rng):
-        rows, prefix = sample_referential_batch(*jax.random.split(rng), data, config.batch_size)
+        rows, prefix = sample_referential_batch(*jax.random.split(rng), data, config.rg_batch_size or config.batch_size)
         message = jax.nn.one_hot(goals[rows], num_goals) * float(informed)
         logits = receiver.apply(params, message, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])
@@ -63,21 +63,24 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=256)
     parser.add_argument("--receiver-hidden", type=int, nargs="*", default=[256], help="receiver hidden layers")
     parser.add_argument("--seeds", type=int, default=1, help="generator seeds (vmapped); quality is per seed")
+    parser.add_argument("--all-tokens", action="store_true", help="Eq. 2 over every token per tuple (rg_all_tokens)")
     parser.add_argument("--no-reference", action="store_true", help="skip the no-message / goal-told receivers")
     args = parser.parse_args()
     cache = build_cache(args.env, progress=False)
     dataset = TaskDataset.load(args.dataset)
     data = make_task_language_data(dataset, cache)
-    config = TalarConfig(rg_learning_rate=args.lr, gumbel_temperature=args.temperature, batch_size=args.batch_size,
+    config = TalarConfig(rg_learning_rate=args.lr, gumbel_temperature=args.temperature, rg_batch_size=args.batch_size,
                          rg_steps=args.steps, translator_steps=max(1, args.steps // 2),
-                         receiver_hidden=tuple(args.receiver_hidden))  # fmt: skip
+                         receiver_hidden=tuple(args.receiver_hidden), rg_all_tokens=args.all_tokens)  # fmt: skip
     goals, num_goals = jnp.asarray(dataset.goal_ids), cache.num_goals
     for informed in () if args.no_reference else (False, True):
         loss = reference_receiver_loss(data, goals, num_goals, cache.vocab_size, config, informed)
         print(f"receiver given {'the goal' if informed else 'no message'}: RG loss {loss:.3f}")
     start = time.perf_counter()
     keys = jax.random.split(jax.random.PRNGKey(0), args.seeds)
-    params, losses = fit_seeds(make_train_task_language(config, cache.vocab_size), keys, data, label="RG")
+    params, losses = fit_seeds(
+        make_train_task_language(config, cache.vocab_size, cache.max_tokens), keys, data, label="RG"
+    )
     print(f"TALAR generator: RG loss per seed {np.round(losses[:, -max(1, args.steps // 20):].mean(1), 3)} "
           f"({time.perf_counter() - start:.0f} s)")  # fmt: skip
     generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))

@@ -17,6 +17,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from talar_jax.optim import AdamFit
 from talar_jax.task_language import (
@@ -49,15 +50,20 @@ class TalarConfig:
     translator_learning_rate: float = 3e-4
     """LR for L_T (Table 2)."""
     batch_size: int = 256
-    """Tuples per gradient step in both stages."""
+    """Tuples per gradient step of the translator (and of the referential game unless rg_batch_size is set)."""
+    rg_batch_size: int | None = None
+    """Tuples per referential-game step (None: batch_size)."""
     rg_steps: int = 20_000
     """Gradient steps of the referential game."""
+    rg_all_tokens: bool = False
+    """Eq. 2's expectation over T_i computed exactly (every token of each tuple's instruction, one message per
+    tuple) instead of one sampled token per tuple: same objective, lower-variance gradient."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
 
     def __post_init__(self):
-        for name in ("batch_size", "rg_steps", "translator_steps"):
-            if getattr(self, name) < 1:
+        for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")
 
 
@@ -120,6 +126,16 @@ def sample_referential_batch(
     return rows, data.sentence_prefix_start[sentences] + offset
 
 
+def referential_token_rows(rows: jax.Array, data: TaskLanguageData, max_tokens: int) -> tuple[jax.Array, jax.Array]:
+    """(prefix, mask), both (B, max_tokens): every prefix row T_1..T_{i-1} of each tuple's instruction, and which
+    of the ``max_tokens`` slots are real tokens (instructions shorter than ``max_tokens`` are padded)."""
+    sentences = data.sentence_ids[rows]
+    offsets = jnp.arange(max_tokens)
+    mask = offsets[None, :] < data.sentence_prefix_count[sentences][:, None]
+    prefix = data.sentence_prefix_start[sentences][:, None] + jnp.where(mask, offsets[None, :], 0)
+    return prefix, mask
+
+
 def decodable_fraction(codes: np.ndarray, labels: np.ndarray, vote: np.ndarray, score: np.ndarray) -> float:
     """Fraction of the ``score`` rows whose code names their label: the label most ``vote`` rows with that code have.
 
@@ -139,19 +155,28 @@ def _generator(config: TalarConfig) -> TaskLanguageGenerator:
     return TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature)
 
 
-def make_train_task_language(config: TalarConfig, vocab_size: int) -> AdamFit:
+def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: int | None = None) -> AdamFit:
     """The referential game as an ``AdamFit`` over ``data``: ``fit(rng, data) -> (params, losses)`` (vmap over seeds).
 
-    ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step.
+    ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step. ``max_tokens``
+    (the longest instruction's token count) is needed with ``config.rg_all_tokens``.
     """
     generator, receiver = _generator(config), Receiver(vocab_size, config.receiver_hidden)
+    if config.rg_all_tokens and (max_tokens is None or max_tokens < 1):
+        raise ValueError("rg_all_tokens needs max_tokens, the token count of the longest instruction")
 
     def loss_fn(params, rng, data: TaskLanguageData):
         rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
-        rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.batch_size)
+        rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.rg_batch_size or config.batch_size)
         task_language = generator.apply(params["generator"], data.states[rows], data.final_states[rows], rng_gumbel)
-        logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
-        return referential_game_loss(logits, data.prefix_next_token[prefix])
+        if not config.rg_all_tokens:
+            logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
+            return referential_game_loss(logits, data.prefix_next_token[prefix])
+        prefix, mask = referential_token_rows(rows, data, max_tokens)
+        messages = jnp.broadcast_to(task_language[:, None, :], (*prefix.shape, task_language.shape[-1]))
+        logits = receiver.apply(params["receiver"], messages, data.prefix_embeddings[prefix])
+        nll = optax.softmax_cross_entropy_with_integer_labels(logits, data.prefix_next_token[prefix])
+        return ((nll * mask).sum(-1) / mask.sum(-1)).mean()  # uniform T_i per tuple, then mean over tuples
 
     def init_params(rng: jax.Array, data: TaskLanguageData):
         rng_generator, rng_receiver = jax.random.split(rng)

@@ -13,9 +13,11 @@ from talar_jax.talar import (
     make_train_task_language,
     make_train_translator,
     make_translate,
+    sample_referential_batch,
     task_language_quality,
 )
 from talar_jax.task_language import (
+    Receiver,
     TaskLanguageGenerator,
     TaskLanguageSpec,
     decode_translation,
@@ -121,6 +123,37 @@ def test_talar_learns_a_task_language_that_separates_goals_on_a_toy_task():
         jax.tree.map(lambda x: x[0], params["generator"]), data.states[:4], data.final_states[:4]
     )
     assert generated.shape == (4, config.spec.size)
+
+
+def test_all_tokens_referential_loss_is_the_mean_over_each_instructions_tokens():
+    """rg_all_tokens: one message per tuple, NLL averaged over that instruction's real tokens (padding masked)."""
+    data, _, _, vocab = _toy_data(tuples=64)
+    counts = np.where(np.arange(len(data.sentence_prefix_count)) % 2 == 0, 2, 1)  # odd sentences: one token
+    data = data._replace(sentence_prefix_count=jnp.asarray(counts, jnp.int32))
+    config = TalarConfig(batch_size=16, rg_all_tokens=True)
+    with pytest.raises(ValueError, match="max_tokens"):
+        make_train_task_language(config, vocab)
+    fit = make_train_task_language(config, vocab, max_tokens=3)  # padding in every row
+    rng = jax.random.key(3)
+    params = fit.init_params(jax.random.key(0), data)
+    loss = float(fit.loss(params, rng, data))
+    rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
+    rows, _ = sample_referential_batch(rng_batch, rng_prefix, data, config.batch_size)
+    message = TaskLanguageGenerator(config.spec, config.generator_hidden, config.gumbel_temperature).apply(
+        params["generator"], data.states[rows], data.final_states[rows], rng_gumbel
+    )
+    receiver = Receiver(vocab, config.receiver_hidden)
+    expected = []
+    for b, row in enumerate(np.asarray(rows)):
+        sentence = int(data.sentence_ids[row])
+        per_token = []
+        for j in range(counts[sentence]):
+            prefix = int(data.sentence_prefix_start[sentence]) + j
+            logits = receiver.apply(params["receiver"], message[b], data.prefix_embeddings[prefix])
+            per_token.append(-float(jax.nn.log_softmax(logits)[data.prefix_next_token[prefix]]))
+        expected.append(np.mean(per_token))
+    assert len(set(counts[np.asarray(data.sentence_ids[rows])])) == 2  # the batch mixes both lengths
+    np.testing.assert_allclose(loss, np.mean(expected), rtol=1e-5)
 
 
 def test_task_language_quality_on_a_hand_built_table():

@@ -90,6 +90,11 @@ class EmbeddingCache:
     goal_sentence_counts: np.ndarray
 
     @property
+    def max_tokens(self) -> int:
+        """Word pieces of the longest sentence (the most next-token targets one instruction has)."""
+        return int(self.sentence_prefix_count.max())
+
+    @property
     def vocab_size(self) -> int:
         """V: number of distinct next tokens (receiver output size)."""
         return len(self.token_vocab)
