@@ -193,7 +193,7 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
         generate = jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None))
         return jax.jit(generate)(generator_params, data.states, data.final_states)
 
-    key = stable_hash("translator", rg.key)
+    key = stable_hash("translator", rg.key, config.sentence_readout)
     translator = _translator_stage(ctx, "talar/translator", key, config.talar.spec, targets)
     return _table_setup(ctx, rg, translator)
 
@@ -202,7 +202,8 @@ def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
     """Appendix E.7: the translator trained to a one-hot of the goal instead of the generator's TL."""
     spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=ctx.cache.num_goals)
     goals = goal_one_hot(ctx.dataset.goal_ids, ctx.cache.num_goals)
-    key = stable_hash("handcrafted", ctx.upstream_key, ctx.cache.key, ctx.config.talar, ctx.seeds, ctx.config.seed)
+    key = stable_hash("handcrafted", ctx.upstream_key, ctx.cache.key, ctx.config.talar, ctx.seeds, ctx.config.seed,
+                      ctx.config.sentence_readout)  # fmt: skip
     stage = _translator_stage(ctx, "handcrafted/translator", key, spec, lambda _: np.broadcast_to(
         goals, (ctx.seeds, *goals.shape)))  # fmt: skip
     return _table_setup(ctx, stage)
@@ -228,7 +229,8 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
         return jax.jit(codes)(load_tree(gla.path / "params.msgpack"), data.states, data.final_states)
 
     spec = TaskLanguageSpec(num_predicates=size, num_arguments=0)
-    stage = _translator_stage(ctx, "gla/translator", stable_hash("gla_translator", gla.key), spec, targets)
+    key = stable_hash("gla_translator", gla.key, config.sentence_readout)
+    stage = _translator_stage(ctx, "gla/translator", key, spec, targets)
     return _table_setup(ctx, gla, stage)
 
 
@@ -241,11 +243,13 @@ def setup_onehot(ctx: MethodContext) -> MethodSetup:
 
 def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> MethodSetup:
     config = ctx.config
-    conditioner = EncodingLayerConditioner(ctx.cache.sentence_embeddings, ctx.lookups(), config.talar.spec.size, binary)
+    features = np.asarray(ctx.data.sentence_embeddings)  # the same sentence readout the translators get
+    conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary)
     name = f"{'pretrained-' if pretrained else ''}bert-{'binary' if binary else 'continuous'}"
     if not pretrained:
-        return MethodSetup(conditioner, None, stable_hash(name, ctx.cache.key), None)
-    key = stable_hash(name, ctx.upstream_key, ctx.cache.key, config.ifp.hidden_sizes, config.talar, ctx.seeds)
+        return MethodSetup(conditioner, None, stable_hash(name, ctx.cache.key, config.sentence_readout), None)
+    key = stable_hash(name, ctx.upstream_key, ctx.cache.key, config.ifp.hidden_sizes, config.talar, ctx.seeds,
+                      config.sentence_readout)  # fmt: skip
 
     def bc_body(stage_dir: Path) -> dict[str, Any]:
         fit = make_behaviour_cloning(ctx, conditioner, steps=config.talar.translator_steps)

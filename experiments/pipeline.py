@@ -23,7 +23,7 @@ from experiments.oracle import run as run_oracle
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
-from talar_jax.language import EmbeddingCache, build_cache
+from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache
 from talar_jax.logging import TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
 from talar_jax.report import LearningCurve, plot_learning_curves, plot_tsne, results_table
@@ -58,6 +58,10 @@ class ExperimentConfig:
     """Oracle PPO budget (default per env; training stops at the oracle's success target)."""
     num_tuples: int | None = None
     """Task-dataset size (default: clevr 100,000, kitchen 50,000)."""
+    sentence_readout: str = "sentence+prefixes"
+    """What translators and NL-encoding baselines read of an instruction: 'sentence' (the pooled BERT embedding)
+    or 'sentence+prefixes' (that and the mean of its prefix embeddings, which keeps word order; see
+    ``EmbeddingCache.sentence_features``)."""
     talar: TalarConfig = TalarConfig()
     """Referential game and translator hyper-parameters."""
     ifp: PPOConfig = PPOConfig()
@@ -87,6 +91,8 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
         raise ValueError(f"unknown method {config.method!r}; valid methods: {', '.join(METHODS)}")
     if config.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {config.seeds}")
+    if config.sentence_readout not in SENTENCE_READOUTS:
+        raise ValueError(f"unknown sentence readout {config.sentence_readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
     if config.num_patterns is not None and (config.env != "clevr" or not 1 <= config.num_patterns <= 9):
         raise ValueError("--num-patterns is for clevr only and must lie in 1..9")
     physics = config.physics or envs.default_backend()
@@ -256,7 +262,8 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     cache = build_cache(config.env, config.encoder, progress=config.progress)
     dataset = TaskDataset.load(stages["oracle"].path / "dataset")
     env = envs.make(config.env, physics=config.physics)
-    ctx = MethodContext(config, stages["oracle"].key, make_task_language_data(dataset, cache), cache, dataset, env)
+    data = make_task_language_data(dataset, cache, config.sentence_readout)
+    ctx = MethodContext(config, stages["oracle"].key, data, cache, dataset, env)
     setup = METHODS[config.method](ctx)
     stages.update(setup.stages)
     stages["ifp"] = stage_ifp(config, setup, env)

@@ -64,11 +64,12 @@ def main() -> None:
     parser.add_argument("--receiver-hidden", type=int, nargs="*", default=[256], help="receiver hidden layers")
     parser.add_argument("--seeds", type=int, default=1, help="generator seeds (vmapped); quality is per seed")
     parser.add_argument("--all-tokens", action="store_true", help="Eq. 2 over every token per tuple (rg_all_tokens)")
+    parser.add_argument("--sentence-readout", default="sentence+prefixes", help="translator input (sentence_features)")
     parser.add_argument("--no-reference", action="store_true", help="skip the no-message / goal-told receivers")
     args = parser.parse_args()
     cache = build_cache(args.env, progress=False)
     dataset = TaskDataset.load(args.dataset)
-    data = make_task_language_data(dataset, cache)
+    data = make_task_language_data(dataset, cache, args.sentence_readout)
     config = TalarConfig(rg_learning_rate=args.lr, gumbel_temperature=args.temperature, rg_batch_size=args.batch_size,
                          rg_steps=args.steps, translator_steps=max(1, args.steps // 2),
                          receiver_hidden=tuple(args.receiver_hidden), rg_all_tokens=args.all_tokens)  # fmt: skip

@@ -74,7 +74,7 @@ class TaskLanguageData(NamedTuple):
         states: (N, obs) s_i.
         final_states: (N, obs) s_T of the same episode.
         sentence_ids: (N,) row of the instruction L_N in the cache.
-        sentence_embeddings: (S, D) pooled BERT embedding of every cached sentence.
+        sentence_embeddings: (S, F) the translator's input per cached sentence (``cache.sentence_features``).
         prefix_embeddings: (P, D) BERT embedding of every prefix T_1..T_{i-1}.
         prefix_next_token: (P,) index of T_i in the task vocabulary.
         sentence_prefix_start: (S,) first prefix row of each sentence.
@@ -91,8 +91,11 @@ class TaskLanguageData(NamedTuple):
     sentence_prefix_count: jax.Array
 
 
-def make_task_language_data(dataset: Any, cache: Any) -> TaskLanguageData:
-    """Joins a ``TaskDataset`` (states, final_states, instruction_ids) with an ``EmbeddingCache``."""
+def make_task_language_data(dataset: Any, cache: Any, readout: str = "sentence") -> TaskLanguageData:
+    """Joins a ``TaskDataset`` (states, final_states, instruction_ids) with an ``EmbeddingCache``.
+
+    ``readout`` picks the sentence features translators read (``EmbeddingCache.sentence_features``).
+    """
     sentence_ids = np.asarray(dataset.instruction_ids, np.int32)
     if sentence_ids.size == 0:
         raise ValueError("the task dataset is empty")
@@ -105,7 +108,7 @@ def make_task_language_data(dataset: Any, cache: Any) -> TaskLanguageData:
         states=jnp.asarray(dataset.states, jnp.float32),
         final_states=jnp.asarray(dataset.final_states, jnp.float32),
         sentence_ids=jnp.asarray(sentence_ids),
-        sentence_embeddings=jnp.asarray(cache.sentence_embeddings, jnp.float32),
+        sentence_embeddings=jnp.asarray(cache.sentence_features(readout), jnp.float32),
         prefix_embeddings=jnp.asarray(cache.prefix_embeddings, jnp.float32),
         prefix_next_token=jnp.asarray(cache.prefix_next_token_compact, jnp.int32),
         sentence_prefix_start=jnp.asarray(cache.sentence_prefix_start, jnp.int32),

@@ -80,6 +80,8 @@ def test_kitchen_quick_end_to_end(tmp_path):
 def test_bad_experiment_options_fail_clearly(tmp_path):
     with pytest.raises(ValueError, match="unknown method 'nope'"):
         clevr.main(["--method", "nope", "--out", str(tmp_path)])
+    with pytest.raises(ValueError, match="unknown sentence readout 'cls'"):
+        clevr.main(["--sentence-readout", "cls", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="num-patterns"):
         kitchen.main(["--num-patterns", "3", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="valid methods"):

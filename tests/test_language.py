@@ -367,6 +367,21 @@ def test_cache_layout(tiny_cache, tiny_encoder):
         )
 
 
+def test_sentence_readouts(tiny_cache):
+    """'sentence' is the pooled embedding; 'sentence+prefixes' appends the mean of the sentence's prefix embeddings."""
+    cache = tiny_cache
+    np.testing.assert_array_equal(cache.sentence_features("sentence"), cache.sentence_embeddings)
+    features = cache.sentence_features("sentence+prefixes")
+    assert features.shape == (len(cache.sentences), 2 * cache.embedding_dim) and features.dtype == np.float32
+    np.testing.assert_array_equal(features[:, : cache.embedding_dim], cache.sentence_embeddings)
+    for row in (0, 7, len(cache.sentences) - 1):
+        prefixes = cache.prefix_embeddings[cache.prefix_sentence == row]
+        assert len(prefixes) == cache.sentence_prefix_count[row]
+        np.testing.assert_allclose(features[row, cache.embedding_dim :], prefixes.mean(0), atol=1e-6)
+    with pytest.raises(ValueError, match="unknown sentence readout 'cls'.*sentence\\+prefixes"):
+        cache.sentence_features("cls")
+
+
 def test_cache_subset_matches_instruction_splits(tiny_cache):
     for is_train, split in ((True, "train"), (False, "test")):
         part = tiny_cache.subset(is_train=is_train)

@@ -1,11 +1,12 @@
 """Language layer: instruction sets, a flax BERT encoder for Hugging Face BERT folders, and the embedding cache."""
 
 from talar_jax.language.bert import BertConfig, BertModel, mean_pool
-from talar_jax.language.cache import EmbeddingCache, build_cache, default_cache_dir
+from talar_jax.language.cache import SENTENCE_READOUTS, EmbeddingCache, build_cache, default_cache_dir
 from talar_jax.language.encoder import BertEncoder, EncoderError, default_encoder_path, load_encoder
 from talar_jax.language.instructions import InstructionSet, load_instructions
 
 __all__ = [
+    "SENTENCE_READOUTS",
     "BertConfig",
     "BertEncoder",
     "BertModel",

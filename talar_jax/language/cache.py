@@ -39,6 +39,9 @@ _ARRAY_FIELDS = (
 )  # fmt: skip
 
 
+SENTENCE_READOUTS: tuple[str, ...] = ("sentence", "sentence+prefixes")
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class EmbeddingCache:
     """Embeddings and token data of every sentence of an env for one encoder (numpy arrays; move to device once).
@@ -88,6 +91,22 @@ class EmbeddingCache:
     sentence_prefix_count: np.ndarray
     goal_sentences: np.ndarray
     goal_sentence_counts: np.ndarray
+
+    def sentence_features(self, readout: str = "sentence") -> np.ndarray:
+        """(S, F) what translators and NL-encoding policies read of each sentence.
+
+        ``"sentence"``: the pooled sentence embedding (F = D). ``"sentence+prefixes"``: that embedding
+        concatenated with the mean of the sentence's prefix embeddings b(T_1..T_{i-1}), i = 1..n (F = 2D), the
+        vectors the referential game already reads: each prefix embeds only the words so far, so their mean keeps
+        the word order a mean-pooled sentence embedding blurs (which colour is pushed, which is the reference).
+        """
+        if readout == "sentence":
+            return self.sentence_embeddings
+        if readout == "sentence+prefixes":
+            rows = zip(self.sentence_prefix_start, self.sentence_prefix_count)
+            means = np.stack([self.prefix_embeddings[start : start + count].mean(0) for start, count in rows])
+            return np.concatenate([self.sentence_embeddings, means], axis=1).astype(np.float32)
+        raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
 
     @property
     def max_tokens(self) -> int:
