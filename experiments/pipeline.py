@@ -61,7 +61,7 @@ class ExperimentConfig:
     sentence_readout: str = "sentence+prefixes"
     """What translators and NL-encoding baselines read of an instruction: 'sentence' (the pooled BERT embedding)
     or 'sentence+prefixes' (that and the mean of its prefix embeddings, which keeps word order; see
-    ``EmbeddingCache.sentence_features``)."""
+    ``EmbeddingCache.sentence_features``). CLEVR, 5 seeds, 2M: TALAR's test-instruction success 84.0 -> 92.2 %."""
     talar: TalarConfig = TalarConfig()
     """Referential game and translator hyper-parameters."""
     ifp: PPOConfig = PPOConfig()
@@ -227,7 +227,9 @@ def write_report(
 # sampled token: CLEVR, 2 probe seeds, 20k steps, batch 64: the generator's TL decodes the tuple's goal for 63-71 %
 # of tuples (one token, batch 256: 37-52 %, 5 seeds), RG loss 0.30 (0.35), translated table: distinct goal codes
 # 0.95-1.0, goal decodability 0.98-1.0 train / 0.74-0.80 test. Batch 256 with all tokens did better still (0.79-0.84
-# of tuples, RG loss 0.25) but costs 3.7x the time on a 2-core CPU.
+# of tuples, RG loss 0.25) but costs 3.7x the time on a 2-core CPU. With it, 2M IFP steps, 5 seeds: 96.8 / 84.0 %
+# success on train / test instructions (results/clevr-talar-alltokens-5seeds-2M); with ExperimentConfig's default
+# sentence readout as well: 97.8 / 92.2 % (results/clevr-talar-5seeds-2M-final).
 EXPERIMENT_TALAR = TalarConfig(rg_learning_rate=3e-3, gumbel_temperature=4.0, rg_all_tokens=True, rg_batch_size=64)
 
 
