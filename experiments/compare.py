@@ -47,6 +47,8 @@ class CompareArgs:
     """IFP env steps per seed and method (default: the env command's, the paper's budget)."""
     talar: TalarConfig = EXPERIMENT_TALAR
     """TL size, referential game and translator settings (the env commands' ``--talar.*``, same defaults)."""
+    sentence_readout: str = ExperimentConfig.sentence_readout
+    """What translators and BERT-* baselines read of an instruction (as the env commands' ``--sentence-readout``)."""
     progress: bool = True
     """Progress output."""
 
@@ -65,6 +67,7 @@ def base_config(args: CompareArgs) -> ExperimentConfig:
     return dataclasses.replace(
         default, seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick, talar=args.talar,
         physics=args.physics, encoder=args.encoder, num_patterns=args.num_patterns, progress=args.progress,
+        sentence_readout=args.sentence_readout,
     )  # fmt: skip
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import tyro
 
 from experiments.compare import CompareArgs, compare
-from experiments.pipeline import EXPERIMENT_TALAR
+from experiments.pipeline import EXPERIMENT_TALAR, ExperimentConfig
 from talar_jax.talar import TalarConfig
 
 PAPER = {"TALAR": (100.0, 100.0, 99.9), "One-hot": (98.2, 91.8, 86.5), "BERT-binary": (82.0, 60.9, 64.0),
@@ -43,6 +43,8 @@ class PatternsArgs:
     """IFP env steps per seed, method and pattern count (default: 2M, the paper's)."""
     talar: TalarConfig = EXPERIMENT_TALAR
     """TL size, referential game and translator settings (as ``experiments.clevr``'s ``--talar.*``)."""
+    sentence_readout: str = ExperimentConfig.sentence_readout
+    """What translators and BERT-* baselines read of an instruction (as ``experiments.clevr``'s option)."""
     progress: bool = True
     """Progress output."""
 
@@ -53,7 +55,7 @@ def patterns(args: PatternsArgs) -> str:
         final = compare(CompareArgs(env="clevr", methods=args.methods, seeds=args.seeds, out=args.out,
                                     quick=args.quick, physics=args.physics, encoder=args.encoder, num_patterns=k,
                                     ifp_env_steps=args.ifp_env_steps, talar=args.talar,
-                                    progress=args.progress))  # fmt: skip
+                                    sentence_readout=args.sentence_readout, progress=args.progress))  # fmt: skip
         for label, per_split in final.items():
             rates = np.asarray(per_split["train"]) * 100
             rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")

@@ -92,3 +92,5 @@ def test_bad_experiment_options_fail_clearly(tmp_path):
     assert base_config(CompareArgs(out=tmp_path)).talar == clevr.DEFAULT.talar  # same TL settings as the command
     parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"])
     assert base_config(parsed).talar.gumbel_temperature == 2.0
+    assert base_config(CompareArgs(out=tmp_path)).sentence_readout == clevr.DEFAULT.sentence_readout
+    assert base_config(CompareArgs(out=tmp_path, sentence_readout="sentence")).sentence_readout == "sentence"
