@@ -118,9 +118,9 @@ class FrozenTableConditioner(InstructionTableConditioner):
 
 
 class EncodingLayerConditioner(Conditioner):
-    """BERT-binary / BERT-continuous: a trainable dense layer on the frozen sentence embedding."""
+    """BERT-binary / BERT-continuous: a trainable dense layer on the frozen sentence features."""
 
-    def __init__(self, sentence_embeddings: np.ndarray, lookups: dict, size: int, binary: bool):
+    def __init__(self, sentence_embeddings: np.ndarray | jax.Array, lookups: dict, size: int, binary: bool):
         self.embeddings = jnp.asarray(sentence_embeddings, jnp.float32)
         self.layer = NLEncodingLayer(size, binary)
         self.size = size
@@ -243,7 +243,7 @@ def setup_onehot(ctx: MethodContext) -> MethodSetup:
 
 def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> MethodSetup:
     config = ctx.config
-    features = np.asarray(ctx.data.sentence_embeddings)  # the same sentence readout the translators get
+    features = ctx.data.sentence_embeddings  # the same sentence readout the translators get (on device already)
     conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary)
     name = f"{'pretrained-' if pretrained else ''}bert-{'binary' if binary else 'continuous'}"
     if not pretrained:

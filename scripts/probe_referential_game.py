@@ -41,7 +41,7 @@ def reference_receiver_loss(data, goals, num_goals, vocab_size, config, informed
     receiver = Receiver(vocab_size, config.receiver_hidden)
 
     def loss_fn(params, rng):
-        rows, prefix = sample_referential_batch(*jax.random.split(rng), data, config.rg_batch_size or config.batch_size)
+        rows, prefix = sample_referential_batch(*jax.random.split(rng), data, config.referential_batch_size)
         message = jax.nn.one_hot(goals[rows], num_goals) * float(informed)
         logits = receiver.apply(params, message, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix])

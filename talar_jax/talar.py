@@ -17,7 +17,6 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from talar_jax.optim import AdamFit
 from talar_jax.task_language import (
@@ -60,6 +59,11 @@ class TalarConfig:
     tuple) instead of one sampled token per tuple: same objective, lower-variance gradient."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
+
+    @property
+    def referential_batch_size(self) -> int:
+        """Tuples per referential-game step: ``rg_batch_size``, else ``batch_size``."""
+        return self.rg_batch_size or self.batch_size
 
     def __post_init__(self):
         for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size"):
@@ -170,7 +174,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
 
     def loss_fn(params, rng, data: TaskLanguageData):
         rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
-        rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.rg_batch_size or config.batch_size)
+        rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.referential_batch_size)
         task_language = generator.apply(params["generator"], data.states[rows], data.final_states[rows], rng_gumbel)
         if not config.rg_all_tokens:
             logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
@@ -178,8 +182,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
         prefix, mask = referential_token_rows(rows, data, max_tokens)
         messages = jnp.broadcast_to(task_language[:, None, :], (*prefix.shape, task_language.shape[-1]))
         logits = receiver.apply(params["receiver"], messages, data.prefix_embeddings[prefix])
-        nll = optax.softmax_cross_entropy_with_integer_labels(logits, data.prefix_next_token[prefix])
-        return ((nll * mask).sum(-1) / mask.sum(-1)).mean()  # uniform T_i per tuple, then mean over tuples
+        return referential_game_loss(logits, data.prefix_next_token[prefix], mask)
 
     def init_params(rng: jax.Array, data: TaskLanguageData):
         rng_generator, rng_receiver = jax.random.split(rng)

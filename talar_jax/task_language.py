@@ -154,14 +154,21 @@ def decode_translation(spec: TaskLanguageSpec, logits: jax.Array) -> jax.Array:
     return jnp.concatenate([predicates, arguments.reshape(*arguments.shape[:-2], -1)], axis=-1)
 
 
-def referential_game_loss(receiver_logits: jax.Array, next_tokens: jax.Array) -> jax.Array:
+def referential_game_loss(
+    receiver_logits: jax.Array, next_tokens: jax.Array, mask: jax.Array | None = None
+) -> jax.Array:
     """Eq. 2: mean negative log-likelihood of the next token.
 
     Args:
-        receiver_logits: (B, V) logits over the task vocabulary.
-        next_tokens: (B,) int indices into that vocabulary.
+        receiver_logits: (B, V) logits over the task vocabulary, or (B, T, V): T candidate tokens per tuple.
+        next_tokens: (B,) or (B, T) int indices into that vocabulary.
+        mask: (B, T) bool, which of a tuple's T tokens are real; the NLL is averaged over them (T_i uniform over
+            the instruction's tokens), then over tuples. None: a plain mean.
     """
-    return optax.softmax_cross_entropy_with_integer_labels(receiver_logits, next_tokens).mean()
+    nll = optax.softmax_cross_entropy_with_integer_labels(receiver_logits, next_tokens)
+    if mask is None:
+        return nll.mean()
+    return ((nll * mask).sum(-1) / mask.sum(-1)).mean()
 
 
 def translator_loss(spec: TaskLanguageSpec, logits: jax.Array, target: jax.Array) -> jax.Array:
