@@ -18,7 +18,7 @@ install: $(VENV)/.installed
 run: install
 	$(PY) -m experiments.clevr --seeds 5 $(ARGS)
 
-test: install
+test: install lint
 	$(PY) -m pytest -q
 
 test-all: install
@@ -29,3 +29,4 @@ bench: install
 
 lint: install
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .

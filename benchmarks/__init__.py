@@ -1,10 +1,9 @@
 """Benchmarks (``python -m benchmarks.<name>``): print a table and write JSON.
 
-Importing this package sets the CPU XLA flag MJX needs before JAX starts (see README).
+Importing this package sets the CPU XLA flag MJX needs before JAX starts (see README). The compile cache stays
+off here: benchmarks report compile time.
 """
 
-import os
+from talar_jax.runtime import configure
 
-_FLAG = "--xla_cpu_use_fusion_emitters=false"
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
+configure(compile_cache=False)

@@ -104,8 +104,17 @@ def run(name: str, quick: bool = False) -> dict:
     # the machine is shared: the baseline is timed before and after the JAX rows, ratios use the mean
     original_after = ORIGINAL_STYLE[name](original_steps)
     original = (original_before + original_after) / 2
-    rows.insert(0, {"backend": "original-style", "batch": 1, "steps_per_s": original, "compile_s": 0.0,
-                    "steps_per_s_before": original_before, "steps_per_s_after": original_after})  # fmt: skip
+    rows.insert(
+        0,
+        {
+            "backend": "original-style",
+            "batch": 1,
+            "steps_per_s": original,
+            "compile_s": 0.0,
+            "steps_per_s_before": original_before,
+            "steps_per_s_after": original_after,
+        },
+    )
     for row in rows:
         row["ratio_to_original"] = row["steps_per_s"] / original
     return {

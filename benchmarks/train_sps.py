@@ -47,8 +47,16 @@ def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: i
     jax.block_until_ready(state)
     seconds = time.perf_counter() - start
     steps = chunks * derive(config).env_steps_per_chunk
-    return {"impl": "talar-jax", "env": env_name, "physics": physics, "num_envs": num_envs, "env_steps": steps,
-            "seconds": seconds, "sps": steps / seconds, "compile_s": compile_s}  # fmt: skip
+    return {
+        "impl": "talar-jax",
+        "env": env_name,
+        "physics": physics,
+        "num_envs": num_envs,
+        "env_steps": steps,
+        "seconds": seconds,
+        "sps": steps / seconds,
+        "compile_s": compile_s,
+    }
 
 
 def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
@@ -92,14 +100,31 @@ def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
 
     vec = VecNormalize(DummyVecEnv([lambda i=i: Adapter(i) for i in range(2)]), norm_obs=False, norm_reward=True)
     policy_kwargs = {"net_arch": {"pi": [32, 64, 64], "vf": [32, 64, 64]}, "activation_fn": torch.nn.Tanh}
-    model = PPO("MlpPolicy", vec, n_steps=512, batch_size=128, n_epochs=10, learning_rate=3e-4,
-                policy_kwargs=policy_kwargs, device="cpu", seed=0)  # fmt: skip
+    model = PPO(
+        "MlpPolicy",
+        vec,
+        n_steps=512,
+        batch_size=128,
+        n_epochs=10,
+        learning_rate=3e-4,
+        policy_kwargs=policy_kwargs,
+        device="cpu",
+        seed=0,
+    )
     model.learn(total_timesteps=1024)  # warm-up: jit of the adapter, torch initialisation
     start = time.perf_counter()
     model.learn(total_timesteps=total_steps, reset_num_timesteps=False)
     seconds = time.perf_counter() - start
-    return {"impl": "sb3 (2 envs)", "env": env_name, "physics": "c", "num_envs": 2, "env_steps": total_steps,
-            "seconds": seconds, "sps": total_steps / seconds, "compile_s": 0.0}  # fmt: skip
+    return {
+        "impl": "sb3 (2 envs)",
+        "env": env_name,
+        "physics": "c",
+        "num_envs": 2,
+        "env_steps": total_steps,
+        "seconds": seconds,
+        "sps": total_steps / seconds,
+        "compile_s": 0.0,
+    }
 
 
 def main() -> None:
@@ -127,8 +152,10 @@ def main() -> None:
     print(f"\n{'impl':<14}{'env':<9}{'physics':<8}{'envs':>5}{'steps':>8}{'sps':>10}{'compile s':>11}{'x ref':>7}")
     for r in rows:
         ratio = f"{r['ratio']:.1f}" if r["ratio"] is not None else "-"
-        print(f"{r['impl']:<14}{r['env']:<9}{r['physics']:<8}{r['num_envs']:>5}{r['env_steps']:>8}{r['sps']:>10.0f}"
-              f"{r['compile_s']:>11.1f}{ratio:>7}")  # fmt: skip
+        print(
+            f"{r['impl']:<14}{r['env']:<9}{r['physics']:<8}{r['num_envs']:>5}{r['env_steps']:>8}{r['sps']:>10.0f}"
+            f"{r['compile_s']:>11.1f}{ratio:>7}"
+        )
     _write(args, rows)
 
 

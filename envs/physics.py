@@ -14,6 +14,8 @@ physics step differs:
 from __future__ import annotations
 
 import abc
+import contextlib
+import io
 import os
 import threading
 from typing import Literal
@@ -23,8 +25,12 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 from mujoco import rollout as mj_rollout
+
+# mujoco.mjx prints "Failed to import warp / mujoco_warp" when the optional Warp backend is absent; only its
+# pure-JAX implementation is used here, so that notice is noise for every user.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 PhysicsBackend = Literal["mjx", "c"]
 PHYSICS_BACKENDS: tuple[str, ...] = ("mjx", "c")

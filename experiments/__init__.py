@@ -1,10 +1,9 @@
 """Experiment entry points (``python -m experiments.<name>``).
 
-Importing this package sets the CPU XLA flag MJX needs before JAX starts (see README).
+Importing this package sets up the process before JAX starts (``talar_jax.runtime.configure``: the CPU XLA
+flag MJX needs, JAX's persistent compilation cache, line-buffered progress output).
 """
 
-import os
+from talar_jax.runtime import configure
 
-_FLAG = "--xla_cpu_use_fusion_emitters=false"
-if _FLAG not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
+configure()

@@ -1,8 +1,9 @@
 """TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-from experiments.pipeline import command
+from experiments.pipeline import command, default_config
 
-DEFAULT, main = command("clevr", total_env_steps=2_000_000)
+DEFAULT = default_config("clevr")
+main = command("clevr")
 
 if __name__ == "__main__":
     main()

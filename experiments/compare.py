@@ -8,72 +8,64 @@ writes ``compare.png`` (Fig. 4 style: all methods, train and test instructions, 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import tyro
 
-from experiments import clevr, kitchen
 from experiments.methods import METHOD_LABELS, METHODS
-from experiments.pipeline import EXPERIMENT_TALAR, ExperimentConfig, learning_curve, run, run_name
+from experiments.pipeline import CLI_CONFIG, ExperimentConfig, check_inputs, learning_curve, run, run_name
+from experiments.recipes import EXPERIMENT_TALAR
 from talar_jax.report import plot_learning_curves, results_table
 from talar_jax.stages import StageResult
-from talar_jax.talar import TalarConfig
-
-DEFAULTS = {"clevr": clevr.DEFAULT, "kitchen": kitchen.DEFAULT}
 
 
 @dataclasses.dataclass(frozen=True)
 class CompareArgs:
-    """Which env, methods and seeds to compare."""
+    """Which methods to compare, on the experiment settings every method shares."""
 
-    env: str = "clevr"
-    """clevr or kitchen."""
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(talar=EXPERIMENT_TALAR)
+    """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; ``--out``
+    defaults to runs/compare-<env>; ``--method`` is set per method)."""
     methods: tuple[str, ...] = tuple(METHODS)
     """Methods to run (TALAR first is conventional)."""
-    seeds: int = 5
-    """Seeds per method."""
-    out: Path | None = None
-    """Output folder (default runs/compare-<env>)."""
-    quick: bool = False
-    """Smoke configuration."""
-    physics: str | None = None
-    """Physics backend (default: the faster one for this device)."""
-    encoder: str | None = None
-    """Local BERT folder (default: all-MiniLM-L6-v2)."""
-    num_patterns: int | None = None
-    """CLEVR: train on the first k sentence patterns (Table 3)."""
     ifp_env_steps: int | None = None
     """IFP env steps per seed and method (default: the env command's, the paper's budget)."""
-    talar: TalarConfig = EXPERIMENT_TALAR
-    """TL size, referential game and translator settings (the env commands' ``--talar.*``, same defaults)."""
-    sentence_readout: str = ExperimentConfig.sentence_readout
-    """What translators and BERT-* baselines read of an instruction (as the env commands' ``--sentence-readout``)."""
-    progress: bool = True
-    """Progress output."""
 
 
 def base_config(args: CompareArgs) -> ExperimentConfig:
-    if args.env not in DEFAULTS:
-        raise ValueError(f"unknown env {args.env!r}; valid: {', '.join(DEFAULTS)}")
+    """The resolved experiment every method of the comparison runs (validated; one ValueError per bad input)."""
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown or not args.methods:
         raise ValueError(f"unknown method(s) {unknown}; valid methods: {', '.join(METHODS)}")
-    default = DEFAULTS[args.env]
+    if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
+        raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
+    experiment = args.experiment
+    if experiment.out is None:
+        experiment = dataclasses.replace(experiment, out=Path(f"runs/compare-{experiment.env}"))
+    config = check_inputs(dataclasses.replace(experiment, method=args.methods[0]))
     if args.ifp_env_steps is not None:
-        if args.ifp_env_steps < 1:
-            raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
-        default = dataclasses.replace(default, ifp=dataclasses.replace(default.ifp, total_env_steps=args.ifp_env_steps))
-    return dataclasses.replace(
-        default, seeds=args.seeds, out=args.out or Path(f"runs/compare-{args.env}"), quick=args.quick, talar=args.talar,
-        physics=args.physics, encoder=args.encoder, num_patterns=args.num_patterns, progress=args.progress,
-        sentence_readout=args.sentence_readout,
-    )  # fmt: skip
+        config = dataclasses.replace(config, ifp=dataclasses.replace(config.ifp, total_env_steps=args.ifp_env_steps))
+    return config
+
+
+def main_with(cls, function, argv: list[str] | None, description: str | None):
+    """Parses ``cls`` from the command line and calls ``function``; bad options: one ``error:`` line, status 2."""
+    args = tyro.cli(cls, args=argv, description=description, config=CLI_CONFIG)
+    try:
+        (base_config(args) if isinstance(args, CompareArgs) else base_config(args.comparison(args.patterns[0])))
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return function(args)
 
 
 def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     """Runs each method (reusing finished stages) and writes the joint figure and table; returns final rates."""
     base = base_config(args)
+    env, seeds, num_patterns = base.env, base.seeds, base.num_patterns
     curves, final = {}, {}
     for method in args.methods:
         config = dataclasses.replace(base, method=method)
@@ -82,8 +74,8 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
         curve = learning_curve(ifp)
         curves[METHOD_LABELS[method]] = curve
         final[METHOD_LABELS[method]] = {split: rates[:, -1] for split, rates in curve.success.items()}
-    title = f"{args.env} ({args.seeds} seeds)"
-    suffix = f"-patterns{args.num_patterns}" if args.num_patterns else ""
+    title = f"{env} ({seeds} seeds)"
+    suffix = f"-patterns{num_patterns}" if num_patterns else ""
     plot_learning_curves(curves, base.out / f"compare{suffix}.png", title=title)
     table = results_table(final, title=f"Final success rate, {title}")
     (base.out / f"compare{suffix}.md").write_text(table)
@@ -92,4 +84,4 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
 
 
 if __name__ == "__main__":
-    compare(tyro.cli(CompareArgs, description=__doc__))
+    main_with(CompareArgs, compare, None, __doc__)

@@ -1,8 +1,9 @@
 """TALAR on FrankaKitchen: ``python -m experiments.kitchen --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-from experiments.pipeline import command
+from experiments.pipeline import command, default_config
 
-DEFAULT, main = command("kitchen", total_env_steps=4_000_000)
+DEFAULT = default_config("kitchen")
+main = command("kitchen")
 
 if __name__ == "__main__":
     main()

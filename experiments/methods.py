@@ -11,24 +11,25 @@ import dataclasses
 import zlib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import serialization
 
 from talar_jax.baselines import (
-    NLEncodingLayer,
+    EncodingLayerConditioner,
     goal_one_hot,
+    make_behaviour_cloning,
     make_gla_codes,
     make_train_gla,
     one_hot_table,
 )
-from talar_jax.conditioning import Conditioner, InstructionSampler, InstructionTableConditioner
+from talar_jax.checkpoint import load_tree, save_tree
+from talar_jax.conditioning import Conditioner, InstructionTableConditioner
+from talar_jax.dataset import TaskDataset
 from talar_jax.language import EmbeddingCache, load_instructions
-from talar_jax.networks import make_ppo_networks
-from talar_jax.optim import AdamFit, fit_seeds
+from talar_jax.optim import fit_seeds
 from talar_jax.sharding import shard_seeds
 from talar_jax.stages import StageResult, run_stage, stable_hash
 from talar_jax.talar import (
@@ -40,6 +41,9 @@ from talar_jax.talar import (
     task_language_quality,
 )
 from talar_jax.task_language import TaskLanguageSpec
+
+if TYPE_CHECKING:
+    from experiments.pipeline import ExperimentConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,11 +66,11 @@ class MethodSetup:
 class MethodContext:
     """Inputs shared by every method of one experiment."""
 
-    config: Any  # ExperimentConfig
+    config: ExperimentConfig  # resolved
     upstream_key: str  # key of the oracle/dataset stage
     data: TaskLanguageData
     cache: EmbeddingCache
-    dataset: Any  # TaskDataset
+    dataset: TaskDataset
     env: Any
 
     @property
@@ -92,49 +96,68 @@ class MethodContext:
         return lookups
 
 
-def save_tree(path: Path, tree: Any) -> None:
-    """Writes a pytree of arrays with msgpack (atomic rename)."""
-    tmp = path.with_suffix(".tmp")
-    tmp.write_bytes(serialization.msgpack_serialize(jax.device_get(tree)))
-    tmp.replace(path)
+# ------------------------------------------------------------------------------------------------
+# Stage keys: each from the upstream keys and exactly the settings the stage reads (tests/test_stage_keys.py)
+# ------------------------------------------------------------------------------------------------
+def referential_game_key(config: ExperimentConfig, upstream_key: str, cache_key: str) -> str:
+    """TALAR's referential game (generator + receiver): dataset, cache, RG settings, seeds."""
+    fields = config.talar.referential_game_fields()
+    return stable_hash("task_language", upstream_key, cache_key, fields, config.seeds, config.seed)
 
 
-def load_tree(path: Path) -> Any:
-    return serialization.msgpack_restore(path.read_bytes())
+def translator_key(config: ExperimentConfig, targets_key: str, name: str) -> str:
+    """A translator to the targets of the stage keyed ``targets_key``: its settings and the sentence readout."""
+    return stable_hash(
+        name, targets_key, config.talar.translator_fields(), config.sentence_readout, config.seeds, config.seed
+    )
 
 
-class FrozenTableConditioner(InstructionTableConditioner):
-    """A per-seed instruction table that PPO carries in ``params["conditioner"]`` but never changes."""
-
-    trainable = False
-
-    def init(self, rng: jax.Array) -> Any:
-        del rng
-        return {"table": self.table}
-
-    def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
-        table = jax.lax.stop_gradient(params["table"])
-        return jnp.where(instruction >= 0, table[jnp.maximum(instruction, 0)], 0.0)
+def gla_key(config: ExperimentConfig, upstream_key: str) -> str:
+    """GLA's latent-action auto-encoder: dataset, code size, its Adam settings, seeds."""
+    t = config.talar
+    return stable_hash(
+        "gla", upstream_key, t.spec.size, t.rg_steps, t.batch_size, t.rg_learning_rate, config.seeds, config.seed
+    )
 
 
-class EncodingLayerConditioner(Conditioner):
-    """BERT-binary / BERT-continuous: a trainable dense layer on the frozen sentence features."""
+def behaviour_cloning_key(config: ExperimentConfig, name: str, upstream_key: str, cache_key: str) -> str:
+    """Pre-trained BERT-*: dataset, encoding size, readout, the policy network, BC Adam settings, seeds."""
+    t = config.talar
+    return stable_hash(
+        name,
+        upstream_key,
+        cache_key,
+        t.spec.size,
+        config.sentence_readout,
+        config.ifp.hidden_sizes,
+        config.ifp.normalize_observations,
+        t.batch_size,
+        t.translator_learning_rate,
+        t.translator_steps,
+        config.seeds,
+        config.seed,
+    )
 
-    def __init__(self, sentence_embeddings: np.ndarray | jax.Array, lookups: dict, size: int, binary: bool):
-        self.embeddings = jnp.asarray(sentence_embeddings, jnp.float32)
-        self.layer = NLEncodingLayer(size, binary)
-        self.size = size
-        self.sampler = InstructionSampler(lookups, num_instructions=len(sentence_embeddings))
 
-    def init(self, rng: jax.Array) -> Any:
-        return self.layer.init(rng, self.embeddings[:1])
-
-    def sample(self, rng: jax.Array, goal: jax.Array, split: str) -> jax.Array:
-        return self.sampler.sample(rng, goal, split)
-
-    def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
-        out = self.layer.apply(params, self.embeddings[jnp.maximum(instruction, 0)], None)
-        return jnp.where(instruction >= 0, out, 0.0)
+def method_stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: str) -> dict[str, str]:
+    """Stage folder -> key of every stage of ``config.method``; the last entry is what the IFP builds on."""
+    method = config.method
+    if method == "talar":
+        rg = referential_game_key(config, upstream_key, cache_key)
+        return {"talar/task_language": rg, "talar/translator": translator_key(config, rg, "translator")}
+    if method == "handcrafted":
+        targets = stable_hash("goal one-hot", upstream_key, cache_key)
+        return {"handcrafted/translator": translator_key(config, targets, "handcrafted")}
+    if method == "gla":
+        gla = gla_key(config, upstream_key)
+        return {"gla/autoencoder": gla, "gla/translator": translator_key(config, gla, "gla_translator")}
+    if method == "onehot":
+        return {"onehot": stable_hash("onehot", cache_key)}
+    if method.startswith("pretrained-"):
+        return {f"{method}/behaviour_cloning": behaviour_cloning_key(config, method, upstream_key, cache_key)}
+    if method.startswith("bert-"):  # no stage of its own: the encoding's inputs
+        return {method: stable_hash(method, cache_key, config.sentence_readout, config.talar.spec.size)}
+    raise ValueError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}")
 
 
 def _table_setup(ctx: MethodContext, *stages: StageResult) -> MethodSetup:
@@ -144,7 +167,7 @@ def _table_setup(ctx: MethodContext, *stages: StageResult) -> MethodSetup:
 
 
 def _frozen_table_setup(ctx: MethodContext, tables: np.ndarray, key: str, stages=()) -> MethodSetup:
-    conditioner = FrozenTableConditioner(tables[0], ctx.lookups())
+    conditioner = InstructionTableConditioner(tables[0], ctx.lookups(), trainable=False)
     return MethodSetup(conditioner, {"conditioner": {"table": tables}}, key, tables, ctx.named(*stages))
 
 
@@ -155,10 +178,11 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
     def body(stage_dir: Path) -> dict[str, Any]:
         targets = jnp.asarray(targets_fn(stage_dir), jnp.float32)
         fit = make_train_translator(config.talar, spec)
-        params, losses = fit_seeds(fit, ctx.seed_keys(name), targets, data, in_axes=(0, None), label=name,
-                                   progress=config.progress)  # fmt: skip
-        tables = np.asarray(jax.jit(jax.vmap(make_translate(config.talar, spec), in_axes=(0, None)))(
-            params, data.sentence_embeddings))  # fmt: skip
+        params, losses = fit_seeds(
+            fit, ctx.seed_keys(name), targets, data, in_axes=(0, None), label=name, progress=config.progress
+        )
+        translate = jax.jit(jax.vmap(make_translate(config.talar, spec), in_axes=(0, None)))
+        tables = np.asarray(translate(params, data.sentence_embeddings))
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "tables.npy", tables)
         quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
@@ -174,27 +198,28 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
 def setup_talar(ctx: MethodContext) -> MethodSetup:
     """Referential game (Algorithm 1), then the translator to the frozen generator's TL (Algorithm 2)."""
     config, cache, data = ctx.config, ctx.cache, ctx.data
-    rg_key = stable_hash("task_language", ctx.upstream_key, cache.key, config.talar, config.seeds, config.seed)
+    keys = method_stage_keys(config, ctx.upstream_key, cache.key)
 
     def rg_body(stage_dir: Path) -> dict[str, Any]:
         fit = make_train_task_language(config.talar, cache.vocab_size, cache.max_tokens)
-        params, losses = fit_seeds(fit, ctx.seed_keys("task_language"), data, label="talar/referential game",
-                                   progress=config.progress)  # fmt: skip
+        label = "talar/referential game"
+        params, losses = fit_seeds(fit, ctx.seed_keys("task_language"), data, label=label, progress=config.progress)
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "losses.npy", losses)
         window = max(1, losses.shape[1] // 20)
-        return {"rg_loss_start": losses[:, :window].mean(1).tolist(),
-                "rg_loss_end": losses[:, -window:].mean(1).tolist()}  # fmt: skip
+        return {
+            "rg_loss_start": losses[:, :window].mean(1).tolist(),
+            "rg_loss_end": losses[:, -window:].mean(1).tolist(),
+        }
 
-    rg = run_stage(config.out, "talar/task_language", rg_key, rg_body)
+    rg = run_stage(config.out, "talar/task_language", keys["talar/task_language"], rg_body)
 
     def targets(stage_dir: Path) -> jax.Array:
         generator_params = load_tree(rg.path / "params.msgpack")["generator"]
         generate = jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None))
         return jax.jit(generate)(generator_params, data.states, data.final_states)
 
-    key = stable_hash("translator", rg.key, config.sentence_readout)
-    translator = _translator_stage(ctx, "talar/translator", key, config.talar.spec, targets)
+    translator = _translator_stage(ctx, "talar/translator", keys["talar/translator"], config.talar.spec, targets)
     return _table_setup(ctx, rg, translator)
 
 
@@ -202,10 +227,10 @@ def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
     """Appendix E.7: the translator trained to a one-hot of the goal instead of the generator's TL."""
     spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=ctx.cache.num_goals)
     goals = goal_one_hot(ctx.dataset.goal_ids, ctx.cache.num_goals)
-    key = stable_hash("handcrafted", ctx.upstream_key, ctx.cache.key, ctx.config.talar, ctx.seeds, ctx.config.seed,
-                      ctx.config.sentence_readout)  # fmt: skip
-    stage = _translator_stage(ctx, "handcrafted/translator", key, spec, lambda _: np.broadcast_to(
-        goals, (ctx.seeds, *goals.shape)))  # fmt: skip
+    key = method_stage_keys(ctx.config, ctx.upstream_key, ctx.cache.key)["handcrafted/translator"]
+    stage = _translator_stage(
+        ctx, "handcrafted/translator", key, spec, lambda _: np.broadcast_to(goals, (ctx.seeds, *goals.shape))
+    )
     return _table_setup(ctx, stage)
 
 
@@ -213,24 +238,24 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
     """GLA: a latent-action auto-encoder of (s, s'), then the translator to its binary latent code (|L_T| bits)."""
     config, data = ctx.config, ctx.data
     size, obs = config.talar.spec.size, data.states.shape[-1]
-    gla_key = stable_hash("gla", ctx.upstream_key, config.talar, ctx.seeds, config.seed)
+    keys = method_stage_keys(config, ctx.upstream_key, ctx.cache.key)
 
     def gla_body(stage_dir: Path) -> dict[str, Any]:
         fit = make_train_gla(size, obs, config.talar.rg_steps, config.talar.batch_size, config.talar.rg_learning_rate)
-        params, losses = fit_seeds(fit, ctx.seed_keys("gla"), data.states, data.final_states, label="gla/autoencoder",
-                                   progress=config.progress)  # fmt: skip
+        params, losses = fit_seeds(
+            fit, ctx.seed_keys("gla"), data.states, data.final_states, label="gla/autoencoder", progress=config.progress
+        )
         save_tree(stage_dir / "params.msgpack", params)
         return {"reconstruction_mse_end": losses[:, -100:].mean(1).tolist()}
 
-    gla = run_stage(config.out, "gla/autoencoder", gla_key, gla_body)
+    gla = run_stage(config.out, "gla/autoencoder", keys["gla/autoencoder"], gla_body)
 
     def targets(stage_dir: Path) -> jax.Array:
         codes = jax.vmap(make_gla_codes(size, obs), in_axes=(0, None, None))
         return jax.jit(codes)(load_tree(gla.path / "params.msgpack"), data.states, data.final_states)
 
     spec = TaskLanguageSpec(num_predicates=size, num_arguments=0)
-    key = stable_hash("gla_translator", gla.key, config.sentence_readout)
-    stage = _translator_stage(ctx, "gla/translator", key, spec, targets)
+    stage = _translator_stage(ctx, "gla/translator", keys["gla/translator"], spec, targets)
     return _table_setup(ctx, gla, stage)
 
 
@@ -238,51 +263,38 @@ def setup_onehot(ctx: MethodContext) -> MethodSetup:
     """One-hot: a unique one-hot per instruction over train and test instructions together."""
     table = one_hot_table(len(ctx.cache.sentences))
     tables = np.broadcast_to(np.asarray(table, np.float32), (ctx.seeds, *table.shape))
-    return _frozen_table_setup(ctx, tables, stable_hash("onehot", ctx.cache.key))
+    return _frozen_table_setup(ctx, tables, method_stage_keys(ctx.config, ctx.upstream_key, ctx.cache.key)["onehot"])
 
 
 def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> MethodSetup:
     config = ctx.config
     features = ctx.data.sentence_embeddings  # the same sentence readout the translators get (on device already)
     conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary)
-    name = f"{'pretrained-' if pretrained else ''}bert-{'binary' if binary else 'continuous'}"
+    name = config.method
+    ((stage_name, key),) = method_stage_keys(config, ctx.upstream_key, ctx.cache.key).items()
     if not pretrained:
-        return MethodSetup(conditioner, None, stable_hash(name, ctx.cache.key, config.sentence_readout), None)
-    key = stable_hash(name, ctx.upstream_key, ctx.cache.key, config.ifp.hidden_sizes, config.talar, ctx.seeds,
-                      config.sentence_readout)  # fmt: skip
+        return MethodSetup(conditioner, None, key, None)
 
     def bc_body(stage_dir: Path) -> dict[str, Any]:
-        fit = make_behaviour_cloning(ctx, conditioner, steps=config.talar.translator_steps)
-        params, losses = fit_seeds(fit, ctx.seed_keys(name), label=f"{name}/behaviour cloning",
-                                   progress=config.progress)  # fmt: skip
+        t = config.talar
+        fit = make_behaviour_cloning(
+            ctx.env,
+            conditioner,
+            ctx.dataset,
+            config.ifp.hidden_sizes,
+            t.batch_size,
+            t.translator_learning_rate,
+            t.translator_steps,
+            normalize_observations=config.ifp.normalize_observations,
+        )
+        label = f"{name}/behaviour cloning"
+        params, losses = fit_seeds(fit, ctx.seed_keys(name), label=label, progress=config.progress)
         save_tree(stage_dir / "params.msgpack", params)
         return {"bc_nll_end": losses[:, -100:].mean(1).tolist()}
 
-    stage = run_stage(config.out, f"{name}/behaviour_cloning", key, bc_body)
+    stage = run_stage(config.out, stage_name, key, bc_body)
     params = load_tree(stage.path / "params.msgpack")
     return MethodSetup(conditioner, params, stage.key, None, ctx.named(stage))
-
-
-def make_behaviour_cloning(ctx: MethodContext, conditioner: Conditioner, steps: int) -> AdamFit:
-    """``fit(rng) -> ({"policy", "conditioner"}, losses)``: maximise log pi(a_i | s_i, enc(L_N)) on the dataset."""
-    config, dataset = ctx.config, ctx.dataset
-    env = ctx.env
-    networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, config.ifp.hidden_sizes)
-    states = jnp.asarray(dataset.states, jnp.float32)
-    actions = jnp.asarray(dataset.actions)
-    instructions = jnp.asarray(dataset.instruction_ids, jnp.int32)
-
-    def loss_fn(params, rng_step):
-        rows = jax.random.randint(rng_step, (config.talar.batch_size,), 0, states.shape[0])
-        cond = jax.vmap(conditioner.apply, in_axes=(None, 0))(params["conditioner"], instructions[rows])
-        dist = networks.policy.apply(params["policy"], jnp.concatenate([states[rows], cond], -1))
-        return -networks.distribution.log_prob(dist, actions[rows]).mean()
-
-    def init_params(rng):
-        rng_policy, rng_conditioner = jax.random.split(rng)
-        return {"policy": networks.init(rng_policy)["policy"], "conditioner": conditioner.init(rng_conditioner)}
-
-    return AdamFit(init_params, loss_fn, config.talar.translator_learning_rate, steps)
 
 
 METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
@@ -296,7 +308,12 @@ METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
     "handcrafted": setup_handcrafted,
 }
 METHOD_LABELS: dict[str, str] = {
-    "talar": "TALAR", "onehot": "One-hot", "bert-binary": "BERT-binary", "bert-continuous": "BERT-continuous",
-    "pretrained-bert-binary": "Pre-trained BERT-binary", "pretrained-bert-continuous": "Pre-trained BERT-continuous",
-    "gla": "GLA", "handcrafted": "Handcrafted",
-}  # fmt: skip
+    "talar": "TALAR",
+    "onehot": "One-hot",
+    "bert-binary": "BERT-binary",
+    "bert-continuous": "BERT-continuous",
+    "pretrained-bert-binary": "Pre-trained BERT-binary",
+    "pretrained-bert-continuous": "Pre-trained BERT-continuous",
+    "gla": "GLA",
+    "handcrafted": "Handcrafted",
+}

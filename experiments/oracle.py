@@ -19,6 +19,7 @@ of successful episodes, L_N drawn from the goal's training instructions, with th
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -28,34 +29,16 @@ import numpy as np
 import tyro
 
 import envs
-from envs.clevr.scripted import greedy_push
-from envs.kitchen.scripted import noisy_scripted_action
+from experiments.recipes import get_recipe
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler
-from talar_jax.dataset import TaskDataset, collect_task_dataset
+from talar_jax.dataset import TaskDataset, collect_task_dataset, policy_behaviour
 from talar_jax.language.instructions import load_instructions
 from talar_jax.logging import TerminalLogger
+from talar_jax.networks import make_ppo_networks
 from talar_jax.ppo import PPOConfig, run_ppo
 
-# Per-env budgets (the paper: CLEVR >= 90 % over 80 goals, 100k tuples; kitchen 10M steps, 50k tuples).
-ORACLE_DEFAULTS: dict[str, dict[str, float]] = {
-    "clevr": {"total_env_steps": 3_000_000, "num_tuples": 100_000, "target_success": 0.9},
-    "kitchen": {"total_env_steps": 10_000_000, "num_tuples": 50_000, "target_success": 0.7},
-}
 COLLECTORS: tuple[str, ...] = ("policy", "scripted")
-DEFAULT_COLLECTOR: dict[str, str] = {"clevr": "scripted", "kitchen": "scripted"}
-SCRIPTED_EPSILON = 0.2  # random-direction probability of the scripted CLEVR collector
-SCRIPTED_NOISE = 0.1  # std of the Gaussian action noise of the scripted kitchen collector
-
-
-def scripted_collector(env_name: str) -> tuple[dict[str, Any], Any, dict[str, float]]:
-    """(env options, ``act(state, rng) -> action``, its settings) of an env's scripted collector."""
-    if env_name == "clevr":
-        return {"action_type": "collect"}, lambda state, rng: greedy_push(state, rng, SCRIPTED_EPSILON), {
-            "epsilon": SCRIPTED_EPSILON}  # fmt: skip
-    if env_name == "kitchen":
-        return {}, lambda state, rng: noisy_scripted_action(state, rng, SCRIPTED_NOISE), {"noise": SCRIPTED_NOISE}
-    raise ValueError(f"no scripted collector for env {env_name!r}; use --collector policy")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,32 +79,52 @@ class OracleArgs:
 
 
 def oracle_ppo_config(args: OracleArgs) -> PPOConfig:
-    """The PPO config of an oracle run (defaults from Table 2; budget per env)."""
-    defaults = ORACLE_DEFAULTS.get(args.env, ORACLE_DEFAULTS["clevr"])
-    total = args.total_env_steps or int(defaults["total_env_steps"])
+    """The PPO config of an oracle run (defaults from Table 2; budget from the env recipe)."""
+    total = args.total_env_steps or get_recipe(args.env).oracle_env_steps
     if args.quick:
-        return PPOConfig(num_envs=16, rollout_length=32, total_env_steps=total if args.total_env_steps else 10_240,
-                         updates_per_chunk=5, eval_episodes=32, seed=args.seed)  # fmt: skip
-    return PPOConfig(num_envs=args.num_envs, rollout_length=args.rollout_length, total_env_steps=total,
-                     updates_per_chunk=8, eval_every_chunks=args.eval_every_chunks,
-                     eval_episodes=args.eval_episodes, seed=args.seed)  # fmt: skip
+        return PPOConfig(
+            num_envs=16,
+            rollout_length=32,
+            total_env_steps=total if args.total_env_steps else 10_240,
+            updates_per_chunk=5,
+            eval_episodes=32,
+            seed=args.seed,
+        )
+    return PPOConfig(
+        num_envs=args.num_envs,
+        rollout_length=args.rollout_length,
+        total_env_steps=total,
+        updates_per_chunk=8,
+        eval_every_chunks=args.eval_every_chunks,
+        eval_episodes=args.eval_episodes,
+        seed=args.seed,
+    )
 
 
 def collector_of(args: OracleArgs) -> str:
     """The collector a run uses (``--collector`` or the env's default); raises on unknown names."""
-    collector = args.collector or DEFAULT_COLLECTOR.get(args.env, "policy")
+    collector = args.collector or get_recipe(args.env).default_collector
     if collector not in COLLECTORS:
         raise ValueError(f"unknown collector {collector!r}; valid: {', '.join(COLLECTORS)}")
     return collector
 
 
-def _train_policy(args: OracleArgs, env, conditioner, defaults) -> tuple[dict, Any]:
+def _train_policy(args: OracleArgs, env, conditioner) -> tuple[dict, Any]:
     """Trains (or resumes) the PPO oracle; returns its summary and one seed's parameters."""
     config = oracle_ppo_config(args)
-    target = args.target_success if args.target_success is not None else defaults["target_success"]
-    result = run_ppo(config, env, conditioner, args.out / "ppo", progress=args.progress, logger=TerminalLogger(
-        ("eval/train/success", "eval/test/success", "train/success", "train/sps", "train/compile_s")),
-        target_success=target, stop_at_target=True)  # fmt: skip
+    target = args.target_success if args.target_success is not None else get_recipe(args.env).oracle_target_success
+    result = run_ppo(
+        config,
+        env,
+        conditioner,
+        args.out / "ppo",
+        progress=args.progress,
+        logger=TerminalLogger(
+            ("eval/train/success", "eval/test/success", "train/success", "train/sps", "train/compile_s")
+        ),
+        target_success=target,
+        stop_at_target=True,
+    )
     summary = {
         "collector": "policy",
         "target_success": target,
@@ -132,29 +135,34 @@ def _train_policy(args: OracleArgs, env, conditioner, defaults) -> tuple[dict, A
         "success": float(result.final_eval["train"]["success"]),
         "ppo_config": dataclasses.asdict(config),
     }
-    print(f"oracle: success {summary['success']:.3f} (train instructions) after "
-          f"{result.env_steps} env steps, {result.wall_s:.0f} s; target {target} reached: {result.target_reached}")
+    print(
+        f"oracle: success {summary['success']:.3f} (train instructions) after "
+        f"{result.env_steps} env steps, {result.wall_s:.0f} s; target {target} reached: {result.target_reached}"
+    )
     return summary, jax.tree.map(lambda leaf: leaf[0], result.params)
 
 
 def run(args: OracleArgs) -> float:
     """Trains (or resumes) the oracle, writes ``oracle.json`` and the dataset; returns the oracle's success."""
-    if args.env not in ORACLE_DEFAULTS:
-        raise ValueError(f"no oracle recipe for env {args.env!r}; valid: {', '.join(ORACLE_DEFAULTS)}")
-    defaults = ORACLE_DEFAULTS[args.env]
+    recipe = get_recipe(args.env)
     collector = collector_of(args)
-    options, behaviour, settings = scripted_collector(args.env) if collector == "scripted" else ({}, None, {})
+    if collector == "scripted":
+        if recipe.scripted_collector is None:
+            raise ValueError(f"env {args.env!r} has no scripted collector; use --collector policy")
+        options, behaviour, settings = recipe.scripted_collector()
+    else:
+        options, behaviour, settings = {}, None, {}
     env = envs.make(args.env, physics=args.physics, **options)
     conditioner = GoalOneHotConditioner(env.num_goals)
     if collector == "policy":
-        summary, seed_params = _train_policy(args, env, conditioner, defaults)
+        summary, seed_params = _train_policy(args, env, conditioner)
     else:
         summary, seed_params = {"collector": "scripted", **settings, "env_steps": 0}, None
 
     summary = {"env": args.env, "physics": args.physics, **summary}
     write_json_atomic(args.out / "oracle.json", summary)
 
-    num_tuples = args.num_tuples or (1_000 if args.quick else int(defaults["num_tuples"]))
+    num_tuples = args.num_tuples or (1_000 if args.quick else recipe.num_tuples)
     dataset_dir = args.out / "dataset"
     existing = TaskDataset.load(dataset_dir) if (dataset_dir / "task_dataset.npz").exists() else None
     same_oracle = existing is not None and existing.config.get("env_steps") == summary["env_steps"]
@@ -164,26 +172,57 @@ def run(args: OracleArgs) -> float:
     instructions = load_instructions(args.env, "train")
     sampler = InstructionSampler({"train": (instructions.goal_cache_rows(), instructions.goal_sentence_counts)})
     start = time.perf_counter()
+    if behaviour is None:
+        hidden_sizes = oracle_ppo_config(args).hidden_sizes
+        networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
+        behaviour = policy_behaviour(networks, seed_params, conditioner)
     dataset = collect_task_dataset(
-        env, seed_params, conditioner, num_tuples, jax.random.PRNGKey(args.seed + 7),
-        instruction_sampler=sampler, hidden_sizes=oracle_ppo_config(args).hidden_sizes, behaviour=behaviour,
-        num_envs=16 if args.quick else args.collect_envs, progress=args.progress, successful_only=not args.quick,
-        config={"env": args.env, "physics": args.physics, "env_steps": summary["env_steps"], "seed": args.seed,
-                "collector": collector,
-                "instruction_ids": "rows of load_instructions(env, 'all') / the embedding cache",
-                "oracle_success": summary.get("success")},
-    )  # fmt: skip
+        env,
+        behaviour,
+        num_tuples,
+        jax.random.PRNGKey(args.seed + 7),
+        sampler,
+        num_envs=16 if args.quick else args.collect_envs,
+        progress=args.progress,
+        successful_only=not args.quick,
+        config={
+            "env": args.env,
+            "physics": args.physics,
+            "env_steps": summary["env_steps"],
+            "seed": args.seed,
+            "collector": collector,
+            "instruction_ids": "rows of load_instructions(env, 'all') / the embedding cache",
+            "oracle_success": summary.get("success"),
+        },
+    )
     collection = dataset.config["collection"]
     if collector == "scripted":  # the scripted collector's success is its collection success
         summary["success"] = dataset.config["oracle_success"] = collection["success_rate"]
     dataset.save(dataset_dir)
-    print(f"dataset: {len(dataset)} tuples from {collection['kept_episodes']} successful episodes "
-          f"({collection['success_rate']:.2f} success) in {time.perf_counter() - start:.0f} s -> {dataset_dir}")
-    summary["dataset"] = {"num_tuples": len(dataset), **collection,
-                          "goals": np.bincount(dataset.goal_ids, minlength=env.num_goals).tolist()}  # fmt: skip
+    print(
+        f"dataset: {len(dataset)} tuples from {collection['kept_episodes']} successful episodes "
+        f"({collection['success_rate']:.2f} success) in {time.perf_counter() - start:.0f} s -> {dataset_dir}"
+    )
+    summary["dataset"] = {
+        "num_tuples": len(dataset),
+        **collection,
+        "goals": np.bincount(dataset.goal_ids, minlength=env.num_goals).tolist(),
+    }
     write_json_atomic(args.out / "oracle.json", summary)
     return float(summary["success"])
 
 
+def main(argv: list[str] | None = None) -> float:
+    """``python -m experiments.oracle``: a bad option prints one ``error:`` line and exits with status 2."""
+    args = tyro.cli(OracleArgs, args=argv, description=__doc__)
+    try:
+        get_recipe(args.env)
+        collector_of(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return run(args)
+
+
 if __name__ == "__main__":
-    run(tyro.cli(OracleArgs))
+    main()

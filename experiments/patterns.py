@@ -9,53 +9,49 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import tyro
 
-from experiments.compare import CompareArgs, compare
-from experiments.pipeline import EXPERIMENT_TALAR, ExperimentConfig
-from talar_jax.talar import TalarConfig
+from experiments.compare import CompareArgs, compare, main_with
+from experiments.pipeline import ExperimentConfig
+from experiments.recipes import EXPERIMENT_TALAR
 
-PAPER = {"TALAR": (100.0, 100.0, 99.9), "One-hot": (98.2, 91.8, 86.5), "BERT-binary": (82.0, 60.9, 64.0),
-         "BERT-continuous": (95.3, 63.1, 60.7)}  # fmt: skip
+PAPER = {
+    "TALAR": (100.0, 100.0, 99.9),
+    "One-hot": (98.2, 91.8, 86.5),
+    "BERT-binary": (82.0, 60.9, 64.0),
+    "BERT-continuous": (95.3, 63.1, 60.7),
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class PatternsArgs:
     """Table 3 settings."""
 
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(
+        env="clevr", out=Path("runs/patterns-clevr"), talar=EXPERIMENT_TALAR
+    )
+    """The shared settings, as ``experiments.clevr`` takes them (one output folder: shared oracle, dataset and task
+    language; ``--num-patterns`` and ``--method`` are set per row and column)."""
     patterns: tuple[int, ...] = (1, 5, 9)
     """Numbers of training sentence patterns."""
     methods: tuple[str, ...] = ("talar", "onehot", "bert-binary", "bert-continuous")
     """Methods (Table 3 rows)."""
-    seeds: int = 5
-    """Seeds per method and pattern count."""
-    out: Path = Path("runs/patterns-clevr")
-    """Output folder (shared oracle, dataset and task language)."""
-    quick: bool = False
-    """Smoke configuration."""
-    physics: str | None = None
-    """Physics backend (default: the faster one for this device)."""
-    encoder: str | None = None
-    """Local BERT folder (default: all-MiniLM-L6-v2)."""
     ifp_env_steps: int | None = None
     """IFP env steps per seed, method and pattern count (default: 2M, the paper's)."""
-    talar: TalarConfig = EXPERIMENT_TALAR
-    """TL size, referential game and translator settings (as ``experiments.clevr``'s ``--talar.*``)."""
-    sentence_readout: str = ExperimentConfig.sentence_readout
-    """What translators and BERT-* baselines read of an instruction (as ``experiments.clevr``'s option)."""
-    progress: bool = True
-    """Progress output."""
+
+    def comparison(self, num_patterns: int) -> CompareArgs:
+        """The comparison of one column."""
+        experiment = dataclasses.replace(self.experiment, num_patterns=num_patterns)
+        return CompareArgs(experiment=experiment, methods=self.methods, ifp_env_steps=self.ifp_env_steps)
 
 
 def patterns(args: PatternsArgs) -> str:
     rows: dict[str, list[str]] = {}
     for k in args.patterns:
-        final = compare(CompareArgs(env="clevr", methods=args.methods, seeds=args.seeds, out=args.out,
-                                    quick=args.quick, physics=args.physics, encoder=args.encoder, num_patterns=k,
-                                    ifp_env_steps=args.ifp_env_steps, talar=args.talar,
-                                    sentence_readout=args.sentence_readout, progress=args.progress))  # fmt: skip
+        final = compare(args.comparison(k))
         for label, per_split in final.items():
             rates = np.asarray(per_split["train"]) * 100
             rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")
@@ -65,11 +61,12 @@ def patterns(args: PatternsArgs) -> str:
         paper = " / ".join(f"{v:g}" for v in PAPER.get(label, ())) or "-"
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {paper} |")
     table = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "table3.md").write_text(table)
+    out = args.experiment.out
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table3.md").write_text(table)
     print(table)
     return table
 
 
 if __name__ == "__main__":
-    patterns(tyro.cli(PatternsArgs, description=__doc__))
+    main_with(PatternsArgs, patterns, None, __doc__)

@@ -10,40 +10,49 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tyro
 
 import envs
-from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSetup
+from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSetup, method_stage_keys
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
+from experiments.recipes import get_recipe
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
-from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache
+from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache, load_encoder
 from talar_jax.logging import TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
-from talar_jax.report import LearningCurve, plot_learning_curves, plot_tsne, results_table
+from talar_jax.report import GoalCurves, LearningCurve, plot_learning_curves, plot_tsne, results_table
 from talar_jax.stages import StageResult, run_stage, stable_hash, to_jsonable
 from talar_jax.talar import TalarConfig, make_task_language_data
 
 
 @dataclasses.dataclass(frozen=True)
 class ExperimentConfig:
-    """One experiment: the TALAR pipeline on an env for several seeds (defaults: the paper's Table 2)."""
+    """One experiment: a method's pipeline on an env for several seeds.
+
+    ``default_config(env)`` is the configuration the env's command runs (``python -m experiments.<env>``); a
+    field left at None here takes the env recipe's value (``experiments/recipes.py``), so
+    ``run(ExperimentConfig(env="kitchen"))`` and ``python -m experiments.kitchen`` make the same run.
+    """
 
     env: str = "clevr"
-    """Env name: clevr or kitchen."""
+    """Env name (one with a recipe: clevr or kitchen)."""
     seeds: int = 5
     """Independent seeds of the referential game, translator and IFP (vmapped in one program)."""
     method: str = "talar"
     """Instruction encoding fed to the policy: talar, onehot, bert-binary, bert-continuous, pretrained-bert-binary,
     pretrained-bert-continuous, gla, handcrafted."""
-    out: Path = Path("runs/clevr")
-    """Output folder (a run found there is resumed; finished stages with unchanged inputs are reused)."""
+    out: Path | None = None
+    """Output folder (default runs/<env>; a run found there is resumed, finished stages with unchanged inputs are
+    reused)."""
     physics: str | None = None
     """Physics backend 'c' or 'mjx' (default: the faster one for the current device: C on CPU, MJX on GPU)."""
     encoder: str | None = None
@@ -57,17 +66,36 @@ class ExperimentConfig:
     oracle_env_steps: int | None = None
     """Oracle PPO budget (default per env; training stops at the oracle's success target)."""
     num_tuples: int | None = None
-    """Task-dataset size (default: clevr 100,000, kitchen 50,000)."""
+    """Task-dataset size (default per env: clevr 100,000, kitchen 50,000)."""
     sentence_readout: str = "sentence+prefixes"
     """What translators and NL-encoding baselines read of an instruction: 'sentence' (the pooled BERT embedding)
     or 'sentence+prefixes' (that and the mean of its prefix embeddings, which keeps word order; see
     ``EmbeddingCache.sentence_features``). CLEVR, 5 seeds, 2M: TALAR's test-instruction success 84.0 -> 92.2 %."""
-    talar: TalarConfig = TalarConfig()
-    """Referential game and translator hyper-parameters."""
-    ifp: PPOConfig = PPOConfig()
-    """PPO of the instruction-following policy (num_seeds and seed are taken from this config's seeds/seed)."""
+    env_options: dict[str, str] | None = None
+    """Env options of the IFP's env (``envs.make(env, **options)``; default: the env recipe's. Kitchen:
+    ``posture_targets scripted``, see README "Kitchen reward"; ``--env-options posture_targets talar`` gives
+    TALAR's original reward)."""
+    talar: TalarConfig | None = None
+    """Referential game and translator hyper-parameters (default: the env recipe's, ``EXPERIMENT_TALAR``)."""
+    ifp: PPOConfig | None = None
+    """PPO of the instruction-following policy (default: the env recipe's; num_seeds and seed are taken from this
+    config's seeds/seed)."""
     progress: bool = True
     """Progress bars and per-chunk lines on the terminal."""
+
+
+KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress")
+"""ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
+
+
+def default_config(env: str, **changes: Any) -> ExperimentConfig:
+    """The configuration ``python -m experiments.<env>`` runs, with ``changes`` applied (the one place defaults
+    come from, for the command line and the Python API alike)."""
+    recipe = get_recipe(env)
+    config = ExperimentConfig(
+        env=env, out=Path(f"runs/{env}"), env_options=dict(recipe.env_options), talar=recipe.talar, ifp=recipe.ifp
+    )
+    return dataclasses.replace(config, **changes)
 
 
 def quick_config(config: ExperimentConfig) -> ExperimentConfig:
@@ -84,9 +112,9 @@ def quick_config(config: ExperimentConfig) -> ExperimentConfig:
 
 
 def resolve(config: ExperimentConfig) -> ExperimentConfig:
-    """Validates the config and fills defaults (physics backend, quick budgets, IFP seeds)."""
-    if config.env not in ("clevr", "kitchen"):
-        raise ValueError(f"unknown experiment env {config.env!r}; valid: clevr, kitchen")
+    """Validates the config (one ``ValueError`` per bad input) and fills defaults: the env recipe's settings for
+    fields left at None, the physics backend, quick budgets, the IFP's seeds."""
+    recipe = get_recipe(config.env)
     if config.method not in METHODS:
         raise ValueError(f"unknown method {config.method!r}; valid methods: {', '.join(METHODS)}")
     if config.seeds < 1:
@@ -95,22 +123,53 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
         raise ValueError(f"unknown sentence readout {config.sentence_readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
     if config.num_patterns is not None and (config.env != "clevr" or not 1 <= config.num_patterns <= 9):
         raise ValueError("--num-patterns is for clevr only and must lie in 1..9")
+    for name in ("oracle_env_steps", "num_tuples"):
+        if getattr(config, name) is not None and getattr(config, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
     physics = config.physics or envs.default_backend()
     if physics not in envs.PHYSICS_BACKENDS:
         raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(envs.PHYSICS_BACKENDS)}")
-    config = dataclasses.replace(config, physics=physics)
+    config = dataclasses.replace(
+        config,
+        physics=physics,
+        out=config.out if config.out is not None else Path(f"runs/{config.env}"),
+        env_options=dict(config.env_options if config.env_options is not None else recipe.env_options),
+        talar=config.talar if config.talar is not None else recipe.talar,
+        ifp=config.ifp if config.ifp is not None else recipe.ifp,
+    )
     if config.quick:
         config = quick_config(config)
     return dataclasses.replace(config, ifp=dataclasses.replace(config.ifp, num_seeds=config.seeds, seed=config.seed))
+
+
+def check_inputs(config: ExperimentConfig) -> ExperimentConfig:
+    """``resolve`` plus the checks that read files (the encoder folder), so a bad input stops the run before its
+    first stage; returns the resolved config."""
+    config = resolve(config)
+    make_env(config)
+    load_encoder(config.encoder)
+    return config
+
+
+def make_env(config: ExperimentConfig):
+    """The IFP's env of a resolved config (an unknown env option raises one clear error)."""
+    return envs.make(config.env, physics=config.physics, **config.env_options)
 
 
 # ------------------------------------------------------------------------------------------------
 # Stages
 # ------------------------------------------------------------------------------------------------
 def _oracle_args(config: ExperimentConfig, out: Path) -> OracleArgs:
-    return OracleArgs(env=config.env, out=out, physics=config.physics, seed=config.seed, quick=config.quick,
-                      total_env_steps=config.oracle_env_steps, num_tuples=config.num_tuples,
-                      progress=config.progress)  # fmt: skip
+    return OracleArgs(
+        env=config.env,
+        out=out,
+        physics=config.physics,
+        seed=config.seed,
+        quick=config.quick,
+        total_env_steps=config.oracle_env_steps,
+        num_tuples=config.num_tuples,
+        progress=config.progress,
+    )
 
 
 def stage_oracle(config: ExperimentConfig) -> StageResult:
@@ -129,14 +188,34 @@ def run_name(config: ExperimentConfig) -> str:
     return config.method if config.num_patterns is None else f"{config.method}-patterns{config.num_patterns}"
 
 
+def ifp_key(config: ExperimentConfig, method_key: str) -> str:
+    """The IFP stage's key: the method's upstream key and every resolved field but ``KEY_EXCLUDED_FIELDS``."""
+    fields = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name not in KEY_EXCLUDED_FIELDS}
+    return stable_hash("ifp", method_key, fields)
+
+
+def stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: str) -> dict[str, str]:
+    """Stage folder -> key of every stage after the oracle and language cache (the method's, then ``ifp``), from
+    a resolved config: what decides whether a cached stage is reused."""
+    keys = method_stage_keys(config, upstream_key, cache_key)
+    return {**keys, "ifp": ifp_key(config, list(keys.values())[-1])}
+
+
 def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
     """Algorithm 3: PPO on [observation, instruction encoding] (for TALAR: the frozen translator's TL)."""
-    key = stable_hash("ifp", setup.key, config.ifp, config.physics, config.num_patterns)
+    key = ifp_key(config, setup.key)
 
     def body(stage_dir: Path) -> dict[str, Any]:
         logger = TerminalLogger(("eval/train/success", "eval/test/success", "train/success", "train/sps"))
-        result = run_ppo(config.ifp, env, setup.conditioner, stage_dir / "ppo", progress=config.progress,
-                         logger=logger if config.progress else None, initial_params=setup.initial_params)  # fmt: skip
+        result = run_ppo(
+            config.ifp,
+            env,
+            setup.conditioner,
+            stage_dir / "ppo",
+            progress=config.progress,
+            logger=logger if config.progress else None,
+            initial_params=setup.initial_params,
+        )
         return {
             "env_steps": result.env_steps,
             "wall_s": result.wall_s,
@@ -158,6 +237,13 @@ def learning_curve(ifp: StageResult) -> LearningCurve:
     return LearningCurve(steps, {s: np.array([r[f"eval/{s}/success_per_seed"] for r in rows]).T for s in SPLITS})
 
 
+def goal_learning_curves(ifp: StageResult, names: list[str], split: str = "train") -> GoalCurves:
+    """Success per goal (pooled over seeds) over env steps from the IFP's ``metrics.jsonl``."""
+    rows = _eval_rows(ifp)
+    per_goal = [[np.nan if v is None else v for v in r[f"eval/{split}/success_per_goal"]] for r in rows]
+    return GoalCurves(np.array([r["train/env_steps"] for r in rows]), np.array(per_goal, float), names, split)
+
+
 def final_success_per_goal(ifp: StageResult) -> dict[str, list[float | None]]:
     """split -> success per goal of the last evaluation, pooled over seeds (None: no episode of that goal)."""
     last = _eval_rows(ifp)[-1]
@@ -166,19 +252,14 @@ def final_success_per_goal(ifp: StageResult) -> dict[str, list[float | None]]:
 
 def per_goal_table(per_goal: dict[str, list[float | None]], names: list[str]) -> str:
     """Markdown table goal -> success (%) per split."""
-    lines = ["| sub-task | " + " | ".join(f"{s} instructions (%)" for s in per_goal) + " |",
-             "|---|" + "---|" * len(per_goal)]  # fmt: skip
+    lines = [
+        "| sub-task | " + " | ".join(f"{s} instructions (%)" for s in per_goal) + " |",
+        "|---|" + "---|" * len(per_goal),
+    ]
     for goal, name in enumerate(names):
         cells = ["-" if per_goal[s][goal] is None else f"{100 * per_goal[s][goal]:.1f}" for s in per_goal]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
-
-
-def goal_names(env: str, num_goals: int) -> list[str]:
-    from envs.clevr.tasks import describe_goal
-    from envs.kitchen.tasks import TASK_NAMES
-
-    return list(TASK_NAMES) if env == "kitchen" else [describe_goal(g) for g in range(num_goals)]
 
 
 def write_report(
@@ -189,20 +270,28 @@ def write_report(
     label = METHOD_LABELS[config.method]
     curve = learning_curve(stages["ifp"])
     title = f"{config.env} ({config.seeds} seeds)"
-    plot_learning_curves({label: curve}, folder / "curves.png", title=title)
+    names = get_recipe(config.env).goal_names()
+    goal_curves = goal_learning_curves(stages["ifp"], names) if cache.num_goals <= 10 else None
+    plot_learning_curves({label: curve}, folder / "curves.png", title=title, per_goal=goal_curves)
     if setup.encodings is not None:
-        plot_tsne(setup.encodings[0], cache.goal_ids, folder / "tsne.png", title=f"{label} encodings, {config.env}",
-                  label_names=goal_names(config.env, cache.num_goals))  # fmt: skip
+        plot_tsne(
+            setup.encodings[0],
+            cache.goal_ids,
+            folder / "tsne.png",
+            title=f"{label} encodings, {config.env}",
+            label_names=names,
+        )
     final = {s: curve.success[s][:, -1] for s in curve.success}
     table = results_table({label: final}, title=f"Final success rate, {title}")
     quality = setup.summary.get("tl_quality", {})
-    table += "".join(f"\n- TL quality `{k}`: {np.mean(v):.3f} (per seed {np.round(v, 3).tolist()})" for k, v in
-                     quality.items())  # fmt: skip
+    table += "".join(
+        f"\n- TL quality `{k}`: {np.mean(v):.3f} (per seed {np.round(v, 3).tolist()})" for k, v in quality.items()
+    )
     table += "".join(f"\n- stage `{name}`: {stage.seconds:.0f} s" for name, stage in stages.items()) + "\n"
     per_goal = final_success_per_goal(stages["ifp"])
     if cache.num_goals <= 10:  # kitchen's six sub-tasks (CLEVR's 80 goals stay in summary.json)
         table += "\n#### Final success per sub-task (pooled over seeds)\n\n"
-        table += per_goal_table(per_goal, goal_names(config.env, cache.num_goals))
+        table += per_goal_table(per_goal, names)
     (folder / "results.md").write_text(table)
     summary = {
         "method": config.method,
@@ -215,47 +304,33 @@ def write_report(
     return summary
 
 
-# Referential-game settings of the experiment commands. Table 2's LR 3e-4 at Gumbel temperature 1 left the generator
-# transmitting almost nothing in our runs (CLEVR, 6k steps: deterministic TL decoded the tuple's goal for 3 % of
-# tuples, RG loss 0.54 = the loss of a receiver that ignores L_T); LR 3e-3 and temperature 2, 20k steps: 47 %, loss
-# 0.36, against 0.18 for a receiver told the goal. The straight-through forward pass is the hard argmax whatever the
-# temperature, which only softens the backward pass: temperature 4 (20k steps, 5 seeds) lowered the RG loss to 0.35
-# and raised the translated table's distinct goal codes from 0.32 to 0.70 and its goal decodability from about 0.5
-# to 0.83 (training instructions) and 0.33 to 0.52 (test); temperature 1: 0.41, 0.13 and 0.34 (3 seeds).
-# Measured with scripts/probe_referential_game.py and runs/clevr-t4 (issue-6 notes).
-# Eq. 2's expectation over T_i taken over every token of the tuple's instruction (rg_all_tokens) instead of one
-# sampled token: CLEVR, 2 probe seeds, 20k steps, batch 64: the generator's TL decodes the tuple's goal for 63-71 %
-# of tuples (one token, batch 256: 37-52 %, 5 seeds), RG loss 0.30 (0.35), translated table: distinct goal codes
-# 0.95-1.0, goal decodability 0.98-1.0 train / 0.74-0.80 test. Batch 256 with all tokens did better still (0.79-0.84
-# of tuples, RG loss 0.25) but costs 3.7x the time on a 2-core CPU. With it, 2M IFP steps, 5 seeds: 96.8 / 84.0 %
-# success on train / test instructions (results/clevr-talar-alltokens-5seeds-2M); with ExperimentConfig's default
-# sentence readout as well: 97.8 / 92.2 % (results/clevr-talar-5seeds-2M-final).
-EXPERIMENT_TALAR = TalarConfig(rg_learning_rate=3e-3, gumbel_temperature=4.0, rg_all_tokens=True, rg_batch_size=64)
-
-
-def command(env: str, total_env_steps: int):
-    """The default config and ``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``)."""
-    import tyro
-
-    default = ExperimentConfig(
-        env=env,
-        out=Path(f"runs/{env}"),
-        talar=EXPERIMENT_TALAR,
-        # the original evaluated with stochastic episodes (40 per split); a deterministic discrete policy can
-        # repeat a blocked push until the time limit
-        ifp=dataclasses.replace(PPOConfig(), eval_every_chunks=2, eval_episodes=80, eval_deterministic=False,
-                                total_env_steps=total_env_steps),
-    )  # fmt: skip
+def command(env: str):
+    """``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``): ``default_config(env)``
+    on the command line; a bad option prints one line and exits with status 2 before any stage runs."""
 
     def main(argv: list[str] | None = None) -> dict[str, Any]:
-        return run(tyro.cli(ExperimentConfig, default=default, args=argv))
+        config = tyro.cli(ExperimentConfig, default=default_config(env), args=argv, config=CLI_CONFIG)
+        return run(checked_or_exit(config))
 
-    return default, main
+    return main
+
+
+CLI_CONFIG = (tyro.conf.AvoidSubcommands,)
+"""tyro settings of every command: optional nested configs (``--talar.*``, ``--ifp.*``) stay plain options."""
+
+
+def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
+    """``check_inputs(config)``, or one ``error: ...`` line on stderr and exit status 2."""
+    try:
+        return check_inputs(config)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def run(config: ExperimentConfig) -> dict[str, Any]:
     """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
-    config = resolve(config)
+    config = check_inputs(config)
     folder = config.out / run_name(config)
     folder.mkdir(parents=True, exist_ok=True)
     write_json_atomic(folder / "config.json", to_jsonable(config))
@@ -263,7 +338,7 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     stages: dict[str, StageResult] = {"oracle": stage_oracle(config)}
     cache = build_cache(config.env, config.encoder, progress=config.progress)
     dataset = TaskDataset.load(stages["oracle"].path / "dataset")
-    env = envs.make(config.env, physics=config.physics)
+    env = make_env(config)
     data = make_task_language_data(dataset, cache, config.sentence_readout)
     ctx = MethodContext(config, stages["oracle"].key, data, cache, dataset, env)
     setup = METHODS[config.method](ctx)

@@ -119,17 +119,29 @@ def main() -> None:
     model = transformers.BertModel.from_pretrained(args.model).eval()
     reference = _outputs(model, tokenizer, SENTENCES, args.dims)
     weights_sha256 = _sha256(args.model / "model.safetensors")
-    np.savez(args.out / "bert_reference.npz", weights_sha256=np.array(weights_sha256), versions=np.array(versions),
-             **reference)  # fmt: skip
+    np.savez(
+        args.out / "bert_reference.npz",
+        weights_sha256=np.array(weights_sha256),
+        versions=np.array(versions),
+        **reference,
+    )
 
     tiny_dir = args.out / "tiny_bert_mlm"
     tiny_dir.mkdir(exist_ok=True)
     vocab = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", *TINY_WORDS]
     (tiny_dir / "vocab.txt").write_text("\n".join(vocab) + "\n")
     config = transformers.BertConfig(
-        vocab_size=len(vocab), hidden_size=32, num_hidden_layers=2, num_attention_heads=4, intermediate_size=37,
-        max_position_embeddings=40, type_vocab_size=2, hidden_act="gelu", layer_norm_eps=1e-12, pad_token_id=0,
-    )  # fmt: skip
+        vocab_size=len(vocab),
+        hidden_size=32,
+        num_hidden_layers=2,
+        num_attention_heads=4,
+        intermediate_size=37,
+        max_position_embeddings=40,
+        type_vocab_size=2,
+        hidden_act="gelu",
+        layer_norm_eps=1e-12,
+        pad_token_id=0,
+    )
     tiny = transformers.BertForMaskedLM(config).eval()
     with torch.no_grad():  # larger than the default 0.02 init so that layers matter numerically
         for parameter in tiny.parameters():

@@ -70,9 +70,15 @@ def main() -> None:
     cache = build_cache(args.env, progress=False)
     dataset = TaskDataset.load(args.dataset)
     data = make_task_language_data(dataset, cache, args.sentence_readout)
-    config = TalarConfig(rg_learning_rate=args.lr, gumbel_temperature=args.temperature, rg_batch_size=args.batch_size,
-                         rg_steps=args.steps, translator_steps=max(1, args.steps // 2),
-                         receiver_hidden=tuple(args.receiver_hidden), rg_all_tokens=args.all_tokens)  # fmt: skip
+    config = TalarConfig(
+        rg_learning_rate=args.lr,
+        gumbel_temperature=args.temperature,
+        rg_batch_size=args.batch_size,
+        rg_steps=args.steps,
+        translator_steps=max(1, args.steps // 2),
+        receiver_hidden=tuple(args.receiver_hidden),
+        rg_all_tokens=args.all_tokens,
+    )
     goals, num_goals = jnp.asarray(dataset.goal_ids), cache.num_goals
     for informed in () if args.no_reference else (False, True):
         loss = reference_receiver_loss(data, goals, num_goals, cache.vocab_size, config, informed)
@@ -82,8 +88,10 @@ def main() -> None:
     params, losses = fit_seeds(
         make_train_task_language(config, cache.vocab_size, cache.max_tokens), keys, data, label="RG"
     )
-    print(f"TALAR generator: RG loss per seed {np.round(losses[:, -max(1, args.steps // 20):].mean(1), 3)} "
-          f"({time.perf_counter() - start:.0f} s)")  # fmt: skip
+    print(
+        f"TALAR generator: RG loss per seed {np.round(losses[:, -max(1, args.steps // 20) :].mean(1), 3)} "
+        f"({time.perf_counter() - start:.0f} s)"
+    )
     generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))
     codes = np.asarray(generate(params["generator"], data.states, data.final_states)).round().astype(np.int8)
     every = np.ones(codes.shape[1], bool)
@@ -92,8 +100,9 @@ def main() -> None:
         distinct = len(np.unique(codes[seed], axis=0))
         print(f"seed {seed} generator TL: {distinct} distinct codes; decodes the tuple's goal for {decoded:.3f}")
     targets = jnp.asarray(codes, jnp.float32)
-    translator, _ = fit_seeds(make_train_translator(config), keys, targets, data, in_axes=(0, None),
-                              label="translator", progress=False)  # fmt: skip
+    translator, _ = fit_seeds(
+        make_train_translator(config), keys, targets, data, in_axes=(0, None), label="translator", progress=False
+    )
     tables = np.asarray(
         jax.jit(jax.vmap(make_translate(config), in_axes=(0, None)))(translator, data.sentence_embeddings)
     )

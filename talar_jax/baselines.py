@@ -11,13 +11,22 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from talar_jax.conditioning import Conditioner, InstructionSampler
+from talar_jax.networks import (
+    OBS_NORMALIZER,
+    init_observation_stats,
+    make_ppo_networks,
+    network_inputs,
+    update_observation_stats,
+)
 from talar_jax.optim import AdamFit
 from talar_jax.task_language import ReluMLP
 
@@ -103,3 +112,77 @@ def make_gla_codes(latent_size: int, observation_size: int):
         return model.apply(params, states, final_states, None, method=LatentActionAutoencoder.encode)
 
     return codes
+
+
+class EncodingLayerConditioner(Conditioner):
+    """BERT-binary / BERT-continuous: a trainable dense layer (``NLEncodingLayer``) on frozen sentence features.
+
+    Args:
+        sentence_features: (num_instructions, D) the features of every instruction (the language cache's
+            sentence readout).
+        goal_sentences_by_split: as ``InstructionTableConditioner``.
+        size: encoding size (|L_T| in the paper's comparison).
+        binary: straight-through Bernoulli bits (BERT-binary) or a continuous layer (BERT-continuous).
+    """
+
+    def __init__(self, sentence_features: Any, goal_sentences_by_split: Mapping, size: int, binary: bool):
+        self.features = jnp.asarray(sentence_features, jnp.float32)
+        self.layer = NLEncodingLayer(size, binary)
+        self.size = size
+        self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.features))
+
+    def init(self, rng: jax.Array) -> Any:
+        return self.layer.init(rng, self.features[:1])
+
+    def sample(self, rng: jax.Array, goal: jax.Array, split: str) -> jax.Array:
+        return self.sampler.sample(rng, goal, split)
+
+    def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
+        out = self.layer.apply(params, self.features[jnp.maximum(instruction, 0)], None)
+        return jnp.where(instruction >= 0, out, 0.0)
+
+
+def make_behaviour_cloning(
+    env: Any,
+    conditioner: Conditioner,
+    dataset: Any,
+    hidden_sizes: Sequence[int],
+    batch_size: int,
+    learning_rate: float,
+    steps: int,
+    normalize_observations: bool = False,
+) -> AdamFit:
+    """``fit(rng) -> ({"policy", "conditioner"}, losses)``: maximise log pi(a_i | s_i, enc(L_N)) on a task dataset.
+
+    The pre-trained BERT-* baselines start PPO from these weights (policy and encoding layer).
+
+    Args:
+        env: the env the policy acts in (observation size, action spec).
+        conditioner: the instruction encoder trained jointly.
+        dataset: a ``TaskDataset`` ((s_i, a_i, instruction id) tuples).
+        hidden_sizes: the policy MLP's hidden layers (the IFP's).
+        batch_size, learning_rate, steps: Adam settings.
+        normalize_observations: standardise states by the dataset's statistics, returned as
+            ``params["obs_normalizer"]`` (PPO then goes on updating them), as an IFP that normalises does.
+    """
+    networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
+    states = jnp.asarray(dataset.states, jnp.float32)
+    actions = jnp.asarray(dataset.actions)
+    instructions = jnp.asarray(dataset.instruction_ids, jnp.int32)
+
+    def loss_fn(params, rng_step):
+        if OBS_NORMALIZER in params:  # statistics, not parameters: zero gradient, so Adam leaves them
+            params = {**params, OBS_NORMALIZER: jax.lax.stop_gradient(params[OBS_NORMALIZER])}
+        rows = jax.random.randint(rng_step, (batch_size,), 0, states.shape[0])
+        cond = jax.vmap(conditioner.apply, in_axes=(None, 0))(params["conditioner"], instructions[rows])
+        dist = networks.policy.apply(params["policy"], network_inputs(params, states[rows], cond))
+        return -networks.distribution.log_prob(dist, actions[rows]).mean()
+
+    def init_params(rng):
+        rng_policy, rng_conditioner = jax.random.split(rng)
+        params = {"policy": networks.init(rng_policy)["policy"], "conditioner": conditioner.init(rng_conditioner)}
+        if normalize_observations:
+            params[OBS_NORMALIZER] = update_observation_stats(init_observation_stats(env.observation_size), states)
+        return params
+
+    return AdamFit(init_params, loss_fn, learning_rate, steps)

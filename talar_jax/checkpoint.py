@@ -9,12 +9,27 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import jax
 import orbax.checkpoint as ocp
+from flax import serialization
 
 
 def config_to_dict(config: Any) -> dict[str, Any]:
     """A frozen dataclass config -> a JSON-ready dict (tuples become lists)."""
     return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def save_tree(path: str | Path, tree: Any) -> None:
+    """Writes a pytree of arrays with msgpack (atomic rename): a stage's trained parameters."""
+    path = Path(path)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(serialization.msgpack_serialize(jax.device_get(tree)))
+    tmp.replace(path)
+
+
+def load_tree(path: str | Path) -> Any:
+    """Reads a pytree written by ``save_tree``."""
+    return serialization.msgpack_restore(Path(path).read_bytes())
 
 
 def write_json_atomic(path: str | Path, payload: Any) -> None:

@@ -106,13 +106,18 @@ class InstructionSampler:
 class InstructionTableConditioner(Conditioner):
     """Instruction id -> a row of a (num_instructions, size) table; instructions drawn per goal and split.
 
+    The table travels in the conditioner's parameters (``init`` returns ``{"table": table}``), so seeds run
+    vmapped can each carry their own table (one translated TL per seed). ``apply`` reads ``params["table"]``
+    (or the constructor's table when ``params`` has none). A frozen table (``trainable=False``, e.g. a translated
+    task language) gets no gradient, and PPO gives it no optimiser state; a trainable one is optimised with the
+    policy.
+
     Args:
         table: (num_instructions, size) conditioning vector of every instruction (e.g. a translated task
             language, or a sentence encoding).
         goal_sentences_by_split: split -> (lookup (num_goals, max_per_goal) int32 instruction ids padded with
             -1, counts (num_goals,) number of valid entries per goal). A goal with count 0 samples -1.
-        trainable: when True the table is a parameter (``init`` returns ``{"table": table}``) and ``apply``
-            reads it from ``params``; subclasses may override ``init``/``apply`` for other trainable encoders.
+        trainable: whether PPO optimises the table.
     """
 
     def __init__(
@@ -131,12 +136,14 @@ class InstructionTableConditioner(Conditioner):
 
     def init(self, rng: jax.Array) -> Any:
         del rng
-        return {"table": self.table} if self.trainable else {}
+        return {"table": self.table}
 
     def sample(self, rng: jax.Array, goal: jax.Array, split: str) -> jax.Array:
         return self.sampler.sample(rng, goal, split)
 
     def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
-        table = params["table"] if self.trainable else self.table
+        table = params.get("table", self.table) if params else self.table
+        if not self.trainable:
+            table = jax.lax.stop_gradient(table)
         row = table[jnp.maximum(instruction, 0)]
         return jnp.where(instruction >= 0, row, 0.0)

@@ -7,6 +7,7 @@ import json
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ from envs.wrappers import EpisodeWrapper
 from talar_jax.acting import goal_of
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import Conditioner
-from talar_jax.networks import PPONetworks, make_inference_fn, make_ppo_networks
+from talar_jax.networks import PPONetworks, make_inference_fn
 
 _ARRAYS = ("states", "final_states", "actions", "instruction_ids", "goal_ids", "episode_ids")
 
@@ -82,42 +83,48 @@ class TaskDataset:
         return cls(**fields, config=config)
 
 
-class _Roller:
-    """Jitted rounds: reset ``num_envs`` envs, play ``episode_length`` steps, return the time-major record."""
+def policy_behaviour(
+    networks: PPONetworks, params: dict[str, Any], conditioner: Conditioner, deterministic: bool = False
+) -> Callable[[Any, jax.Array], jax.Array]:
+    """``act(state, rng) -> action`` (one env) of a trained goal-conditioned PPO policy.
 
-    def __init__(
-        self, env: Any, networks: PPONetworks, conditioner: Conditioner, deterministic: bool, behaviour: Any = None
-    ):
+    The policy reads ``conditioner.apply`` of an instruction drawn for the state's goal with a fixed key, so an
+    episode's conditioning stays constant (for the oracle's ``GoalOneHotConditioner`` it is the goal's one-hot).
+    """
+    policy = make_inference_fn(networks)(params, deterministic)
+
+    def act(state: Any, rng: jax.Array) -> jax.Array:
+        instruction = conditioner.sample(jax.random.PRNGKey(0), goal_of(state), "train")
+        return policy(state.obs, conditioner.apply(params["conditioner"], instruction), rng)
+
+    return act
+
+
+class _Roller:
+    """Jitted rounds: reset ``num_envs`` envs, play ``episode_length`` steps with a behaviour, return the record."""
+
+    def __init__(self, env: Any, behaviour: Callable[[Any, jax.Array], jax.Array]):
         self.env = EpisodeWrapper(env)
-        self.behaviour = behaviour
+        self.act = jax.vmap(behaviour)
         # envs with a reduced collection action space (CLEVR's 'collect') record the full-space action id
         self.record_action = getattr(env, "push_action", lambda state, action: action)
-        self.conditioner = conditioner
-        self.make_policy = make_inference_fn(networks)
-        self.deterministic = deterministic
 
-    def round(self, params: dict[str, Any], rng: jax.Array, num_envs: int) -> dict[str, jax.Array]:
-        rng_reset, rng_instruction, rng_act = jax.random.split(rng, 3)
+    def round(self, rng: jax.Array, num_envs: int) -> dict[str, jax.Array]:
+        rng_reset, _, rng_act = jax.random.split(rng, 3)
         state = jax.vmap(self.env.reset)(jax.random.split(rng_reset, num_envs))
         goal = goal_of(state)
         step_envs = jax.vmap(self.env.step)
-        if self.behaviour is not None:
-            act = jax.vmap(self.behaviour)
-        else:
-            sample = jax.vmap(self.conditioner.sample, in_axes=(0, 0, None))
-            instruction = sample(jax.random.split(rng_instruction, num_envs), goal, "train")
-            cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
-            policy = self.make_policy(params, self.deterministic)
-
-            def act(state, rngs):
-                return jax.vmap(policy)(state.obs, cond, rngs)
 
         def one_step(state, rng_step):
-            action = act(state, jax.random.split(rng_step, num_envs))
+            action = self.act(state, jax.random.split(rng_step, num_envs))
             next_state = step_envs(state, action)
-            record = {"obs": state.obs, "action": jax.vmap(self.record_action)(state, action),
-                      "next_obs": next_state.obs, "done": next_state.done,
-                      "success": next_state.metrics["success"]}  # fmt: skip
+            record = {
+                "obs": state.obs,
+                "action": jax.vmap(self.record_action)(state, action),
+                "next_obs": next_state.obs,
+                "done": next_state.done,
+                "success": next_state.metrics["success"],
+            }
             return next_state, record
 
         _, record = jax.lax.scan(one_step, state, jax.random.split(rng_act, self.env.episode_length))
@@ -133,41 +140,31 @@ def _goals_with_instructions(sampler: Any, num_goals: int) -> np.ndarray:
 
 def collect_task_dataset(
     env: Any,
-    policy_params: dict[str, Any],
-    conditioner: Conditioner,
+    behaviour: Callable[[Any, jax.Array], jax.Array],
     num_tuples: int,
     rng: jax.Array,
+    instruction_sampler: Any,
     *,
-    instruction_sampler: Any = None,
-    networks: PPONetworks | None = None,
-    hidden_sizes: tuple[int, ...] = (32, 64, 64),
     num_envs: int = 256,
-    deterministic: bool = False,
     max_rounds: int = 1000,
     progress: bool = False,
     config: dict[str, Any] | None = None,
     successful_only: bool = True,
-    behaviour: Any = None,
 ) -> TaskDataset:
-    """Rolls out a goal-conditioned policy and keeps the tuples of its successful episodes.
+    """Rolls out a goal-conditioned behaviour and keeps the tuples of its successful episodes.
 
     Args:
         env: the unwrapped env (a time limit is added).
-        policy_params: one seed's ``{"policy": ..., "conditioner": ...}`` parameters (no seed axis).
-        conditioner: what the policy is conditioned on (the goal one-hot for the oracle).
+        behaviour: ``act(state, rng) -> action`` for one env: a scripted controller, or a trained policy
+            (``policy_behaviour``); it reads the goal from the state.
         num_tuples: tuples to keep (the last episode is cut to reach exactly this many).
         rng: PRNG key.
         instruction_sampler: has ``sample(rng, goal, split)``; draws each tuple's L_N from the goal's training
-            instructions (``None``: the acting conditioner, i.e. L_N = goal id for the oracle).
-        networks: the policy's networks (default: ``make_ppo_networks`` with ``hidden_sizes``).
-        hidden_sizes: hidden layers when ``networks`` is None.
+            instructions (goals without one are skipped).
         num_envs: parallel episodes per round.
-        deterministic: act with the policy's mode instead of samples.
         max_rounds: give up (raise) after this many rounds.
         progress: show a tqdm bar over tuples.
         config: stored in the dataset (with the collection statistics added).
-        behaviour: a scripted ``act(state, rng) -> action`` (one env) to collect with instead of the policy;
-            ``policy_params`` may then be None and ``deterministic`` is ignored.
         successful_only: keep only successful episodes (the task dataset's meaning). ``False`` keeps every
             episode with its last state as s_T (hindsight), for smoke runs with an untrained policy.
 
@@ -176,14 +173,13 @@ def collect_task_dataset(
     """
     if num_tuples < 1:
         raise ValueError(f"num_tuples must be >= 1, got {num_tuples}")
-    if networks is None:
-        networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
-    roller = _Roller(env, networks, conditioner, deterministic, behaviour)
-    round_fn = jax.jit(roller.round, static_argnums=2)
-    sampler = instruction_sampler if instruction_sampler is not None else conditioner
+    round_fn = jax.jit(_Roller(env, behaviour).round, static_argnums=1)
+    sampler = instruction_sampler
     draw = jax.jit(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train")))
     start = time.perf_counter()
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in ("states", "final_states", "actions", "goal_ids", "episode_ids")}  # noqa: E501
+    parts: dict[str, list[np.ndarray]] = {
+        name: [] for name in ("states", "final_states", "actions", "goal_ids", "episode_ids")
+    }  # noqa: E501
     kept, episodes, successes, rounds, kept_episodes = 0, 0, 0, 0, 0
     has_language = _goals_with_instructions(sampler, env.num_goals)
     bar = tqdm(total=num_tuples, disable=not progress, unit="tuple", desc="collect")
@@ -191,7 +187,7 @@ def collect_task_dataset(
         if rounds >= max_rounds:
             raise RuntimeError(f"only {kept} of {num_tuples} tuples after {rounds} rounds ({successes} successes)")
         rng, rng_round = jax.random.split(rng)
-        record = jax.device_get(round_fn(policy_params, rng_round, num_envs))
+        record = jax.device_get(round_fn(rng_round, num_envs))
         rounds += 1
         done = np.asarray(record["done"]) > 0.5  # (T, E)
         ended = done.any(axis=0)
@@ -218,11 +214,17 @@ def collect_task_dataset(
     rng, rng_language = jax.random.split(rng)
     keys = jax.random.split(rng_language, len(arrays["goal_ids"]))
     instruction_ids = np.asarray(draw(keys, jnp.asarray(arrays["goal_ids"])), np.int32)
-    collection = {"episodes": episodes, "successful_episodes": successes, "kept_episodes": kept_episodes,
-                  "goals_without_train_instructions": np.flatnonzero(~has_language).tolist(), "rounds": rounds,
-                  "success_rate": successes / max(episodes, 1), "seconds": time.perf_counter() - start,
-                  "num_envs": num_envs, "deterministic": deterministic,
-                  "kept": "successful episodes" if successful_only else "all episodes (hindsight s_T)"}  # fmt: skip
+    collection = {
+        "episodes": episodes,
+        "successful_episodes": successes,
+        "kept_episodes": kept_episodes,
+        "goals_without_train_instructions": np.flatnonzero(~has_language).tolist(),
+        "rounds": rounds,
+        "success_rate": successes / max(episodes, 1),
+        "seconds": time.perf_counter() - start,
+        "num_envs": num_envs,
+        "kept": "successful episodes" if successful_only else "all episodes (hindsight s_T)",
+    }
     return TaskDataset(
         states=arrays["states"].astype(np.float32),
         final_states=arrays["final_states"].astype(np.float32),

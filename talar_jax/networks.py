@@ -132,6 +132,41 @@ def make_distribution(action_spec: ActionSpec) -> Distribution:
     raise ValueError(f"unknown action kind {action_spec.kind!r}; valid kinds: discrete, continuous")
 
 
+OBS_NORMALIZER = "obs_normalizer"
+"""Key of the observation statistics in PPO parameters (present only when observations are normalised)."""
+
+
+def init_observation_stats(size: int) -> dict[str, jax.Array]:
+    """Fresh running statistics of observations: mean 0, variance 1, count 1e-4 (SB3 ``RunningMeanStd``)."""
+    return {
+        "mean": jnp.zeros((size,), jnp.float32),
+        "var": jnp.ones((size,), jnp.float32),
+        "count": jnp.full((), 1e-4, jnp.float32),
+    }
+
+
+def update_observation_stats(stats: dict[str, jax.Array], obs: jax.Array) -> dict[str, jax.Array]:
+    """Merges a batch of observations (..., size) into running statistics (parallel mean/variance update)."""
+    obs = obs.reshape((-1, stats["mean"].shape[0]))
+    batch_mean, batch_var, batch_count = jnp.mean(obs, axis=0), jnp.var(obs, axis=0), obs.shape[0]
+    delta = batch_mean - stats["mean"]
+    total = stats["count"] + batch_count
+    m2 = stats["var"] * stats["count"] + batch_var * batch_count + delta**2 * stats["count"] * batch_count / total
+    return {"mean": stats["mean"] + delta * batch_count / total, "var": m2 / total, "count": total}
+
+
+def normalize_observation(stats: dict[str, jax.Array], obs: jax.Array, clip: float = 10.0) -> jax.Array:
+    """(obs - mean) / sqrt(var + 1e-8) clipped to [-clip, clip] (SB3 ``VecNormalize`` defaults)."""
+    return jnp.clip((obs - stats["mean"]) / jnp.sqrt(stats["var"] + 1e-8), -clip, clip)
+
+
+def network_inputs(params: dict[str, Any], obs: jax.Array, cond: jax.Array) -> jax.Array:
+    """[observation, conditioning vector], the observation normalised when ``params`` carry its statistics."""
+    if OBS_NORMALIZER in params:
+        obs = normalize_observation(params[OBS_NORMALIZER], obs)
+    return jnp.concatenate([obs, cond], axis=-1)
+
+
 class PPONetworks(NamedTuple):
     """The policy and value modules, the action distribution and the input sizes."""
 
@@ -165,12 +200,13 @@ def make_ppo_networks(
 def make_inference_fn(networks: PPONetworks) -> Callable[..., Callable[..., jax.Array]]:
     """Returns ``make_policy(params, deterministic) -> policy(obs, cond, rng) -> action`` (one env; vmap it).
 
-    ``params`` are the ``{"policy": ..., ...}`` parameters of one seed (extra keys are ignored).
+    ``params`` are the ``{"policy": ..., ...}`` parameters of one seed (observation statistics, when present,
+    normalise the observation; other keys are ignored).
     """
 
     def make_policy(params: dict[str, Any], deterministic: bool = False) -> Callable[..., jax.Array]:
         def policy(obs: jax.Array, cond: jax.Array, rng: jax.Array) -> jax.Array:
-            dist_params = networks.policy.apply(params["policy"], jnp.concatenate([obs, cond], axis=-1))
+            dist_params = networks.policy.apply(params["policy"], network_inputs(params, obs, cond))
             if deterministic:
                 return networks.distribution.mode(dist_params)
             return networks.distribution.sample(rng, dist_params)

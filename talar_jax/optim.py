@@ -113,6 +113,9 @@ def fit_seeds(
         done += steps
         if progress:
             recent = losses[-1][:, -max(1, steps // 10) :].mean()
-            print(f"{label}: step {done}/{fit.steps}, loss {recent:.4f} (mean over seeds), "
-                  f"{time.perf_counter() - start:.0f} s", flush=True)  # fmt: skip
+            print(
+                f"{label}: step {done}/{fit.steps}, loss {recent:.4f} (mean over seeds), "
+                f"{time.perf_counter() - start:.0f} s",
+                flush=True,
+            )
     return state.params, np.concatenate(losses, axis=1)

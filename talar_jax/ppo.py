@@ -30,7 +30,15 @@ from talar_jax.checkpoint import Checkpointer, write_json_atomic
 from talar_jax.conditioning import SPLITS, Conditioner, check_split
 from talar_jax.logging import JsonLinesLogger, Logger, MultiLogger, NoOpLogger
 from talar_jax.losses import compute_gae, compute_ppo_loss, init_return_normalizer, normalize_rollout_rewards
-from talar_jax.networks import PPONetworks, make_inference_fn, make_ppo_networks
+from talar_jax.networks import (
+    OBS_NORMALIZER,
+    PPONetworks,
+    init_observation_stats,
+    make_inference_fn,
+    make_ppo_networks,
+    network_inputs,
+    update_observation_stats,
+)
 from talar_jax.sharding import shard_seeds
 from talar_jax.types import TrainingState
 
@@ -71,6 +79,11 @@ class PPOConfig:
     """Clip of the normalised reward."""
     normalize_advantages: bool = True
     """Normalise advantages per minibatch."""
+    normalize_observations: bool = False
+    """Feed the networks observations standardised by running mean/std statistics (SB3 ``VecNormalize``'s
+    observation part, Brax's ``normalize_observations``); the statistics live in ``params["obs_normalizer"]``,
+    get no gradient, and are updated after each update's SGD with that update's rollout. TALAR's original
+    normalised rewards only (the default)."""
     num_seeds: int = 1
     """Independent seeds, vmapped in one compiled program."""
     seed: int = 0
@@ -85,8 +98,17 @@ class PPOConfig:
     """Evaluate the policy's mode (True) or samples (False)."""
 
     def __post_init__(self):
-        positive = ("num_envs", "rollout_length", "total_env_steps", "num_epochs", "minibatch_size", "num_seeds",
-                    "updates_per_chunk", "eval_every_chunks", "eval_episodes")  # fmt: skip
+        positive = (
+            "num_envs",
+            "rollout_length",
+            "total_env_steps",
+            "num_epochs",
+            "minibatch_size",
+            "num_seeds",
+            "updates_per_chunk",
+            "eval_every_chunks",
+            "eval_episodes",
+        )
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -167,7 +189,7 @@ class _Learner:
     # --- network application -------------------------------------------------------------------
     def _inputs(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array) -> jax.Array:
         cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
-        return jnp.concatenate([obs, cond], axis=-1)
+        return network_inputs(params, obs, cond)
 
     def policy_step(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array, rng: jax.Array):
         """Batched acting: (action, log_prob, value) for (N, obs) observations."""
@@ -198,6 +220,8 @@ class _Learner:
     def init(self, rng: jax.Array) -> TrainingState:
         rng, rng_policy, rng_conditioner, rng_env = jax.random.split(rng, 4)
         params = {**self.networks.init(rng_policy), "conditioner": self.conditioner.init(rng_conditioner)}
+        if self.config.normalize_observations:
+            params[OBS_NORMALIZER] = init_observation_stats(self.networks.observation_size)
         env_carry = jax.vmap(self.env.reset)(jax.random.split(rng_env, self.config.num_envs))
         return TrainingState(
             params=params,
@@ -210,8 +234,9 @@ class _Learner:
         )
 
     def _trainable(self, params: dict[str, Any]) -> dict[str, Any]:
-        """The parameters PPO optimises: all of them, or all but a frozen conditioner's."""
-        return params if self.conditioner.trainable else {k: v for k, v in params.items() if k != "conditioner"}
+        """The parameters PPO optimises: all but observation statistics and a frozen conditioner's."""
+        frozen = {OBS_NORMALIZER} | (set() if self.conditioner.trainable else {"conditioner"})
+        return {k: v for k, v in params.items() if k not in frozen}
 
     def _minibatch_step(self, carry: tuple[Any, Any], batch: Minibatch):
         params, opt_state = carry
@@ -252,8 +277,12 @@ class _Learner:
         epoch_keys = jax.random.split(rng_sgd, c.num_epochs)
         epoch_inputs = (epoch_keys, jax.tree.map(lambda x: jnp.broadcast_to(x, (c.num_epochs,) + x.shape), batch))
         (params, opt_state), loss_metrics = jax.lax.scan(self._epoch, (state.params, state.opt_state), epoch_inputs)
+        if c.normalize_observations:  # the rollout was acted and learned on with the old statistics
+            params = {**params, OBS_NORMALIZER: update_observation_stats(params[OBS_NORMALIZER], traj.obs)}
         done = traj.episode_done
         metrics = {key: jnp.mean(value) for key, value in loss_metrics.items()}
+        if "log_std" in params["policy"]["params"]:
+            metrics["policy/std"] = jnp.mean(jnp.exp(params["policy"]["params"]["log_std"]))
         metrics |= {
             "train/episodes": jnp.sum(done),
             "train/successes": jnp.sum(done * traj.success),
@@ -339,13 +368,70 @@ def summarize_eval(record: dict[str, np.ndarray], num_goals: int) -> dict[str, A
 
 def _chunk_metrics(metrics: dict[str, np.ndarray]) -> dict[str, Any]:
     """Per-update metrics (num_seeds, updates_per_chunk) -> chunk means over seeds and updates."""
-    out = {key: float(np.mean(value)) for key, value in metrics.items() if key.startswith("losses/")}
+    out = {key: float(np.mean(value)) for key, value in metrics.items() if key.startswith(("losses/", "policy/"))}
     episodes = float(np.sum(metrics["train/episodes"]))
     out["train/episodes"] = episodes
     out["train/success"] = float(np.sum(metrics["train/successes"]) / max(episodes, 1.0))
     out["train/episode_return"] = float(np.sum(metrics["train/return_sum"]) / max(episodes, 1.0))
     out["train/reward_std"] = float(np.mean(metrics["train/reward_std"]))
     return out
+
+
+def initial_state(trainer: Trainer, config: PPOConfig, initial_params: dict[str, Any] | None = None) -> TrainingState:
+    """Fresh seed-stacked training states (``num_seeds`` leading axis, sharded over devices), with
+    ``initial_params`` (same structure, by key) replacing the freshly initialised parameters."""
+    seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
+    state = jax.jit(jax.vmap(trainer.init))(seed_keys)
+    if initial_params:
+        params = dict(state.params)
+        for name, value in initial_params.items():
+            if name not in params or jax.tree.structure(value) != jax.tree.structure(params[name]):
+                raise ValueError(f"initial_params[{name!r}] must match the structure of params[{name!r}]")
+            params[name] = jax.tree.map(jnp.asarray, value)
+        state = state.replace(params=params)
+    return shard_seeds(state, config.num_seeds)
+
+
+class RunFiles:
+    """A run folder: orbax checkpoints after each chunk, ``progress.json`` and ``metrics.jsonl``; resume from it."""
+
+    def __init__(self, out_dir: str | Path, config: PPOConfig):
+        self.checkpointer = Checkpointer(out_dir, config)
+        self.progress_path = Path(out_dir) / "progress.json"
+        self.logger = JsonLinesLogger(Path(out_dir) / "metrics.jsonl")
+
+    def restore(self, state: TrainingState, done: dict[str, Any]) -> tuple[TrainingState, dict[str, Any]]:
+        """The latest checkpoint's state and progress record, or ``(state, done)`` when the folder has none."""
+        latest = self.checkpointer.latest_step()
+        if latest is None:
+            return state, done
+        state = self.checkpointer.restore(latest, state)
+        if self.progress_path.exists():
+            done = json.loads(self.progress_path.read_text())
+        return state, {**done, "chunks": latest}
+
+    def save(self, chunks: int, state: TrainingState, wall_s: float, target_reached: Any) -> None:
+        self.checkpointer.save(chunks, state)
+        write_json_atomic(self.progress_path, {"chunks": chunks, "wall_s": wall_s, "target_reached": target_reached})
+
+    def close(self) -> None:
+        self.checkpointer.close()
+
+
+def make_evaluator(
+    trainer: Trainer, config: PPOConfig, splits: Sequence[str], num_goals: int
+) -> Callable[[dict[str, Any], int], dict[str, dict[str, Any]]]:
+    """``evaluate(seed_params, index) -> split -> summarize_eval(...)``: fresh episodes per split, keys from
+    ``config.seed`` and ``index`` (so a resumed run evaluates exactly as an uninterrupted one)."""
+    eval_fns = {split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))) for split in splits}
+    eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
+
+    def evaluate(params: dict[str, Any], index: int) -> dict[str, dict[str, Any]]:
+        keys = jax.random.split(jax.random.fold_in(eval_root, index), config.num_seeds)
+        records = {split: jax.device_get(fn(params, keys)) for split, fn in eval_fns.items()}
+        return {split: summarize_eval(record, num_goals) for split, record in records.items()}
+
+    return evaluate
 
 
 def run_ppo(
@@ -385,42 +471,17 @@ def run_ppo(
         check_split(split)
     sizes = derive(config)
     trainer = make_train(config, env, conditioner)
-    loggers: list[Logger] = [logger or NoOpLogger()]
-    seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
-    state = jax.jit(jax.vmap(trainer.init))(seed_keys)
-    if initial_params:
-        params = dict(state.params)
-        for name, value in initial_params.items():
-            if name not in params or jax.tree.structure(value) != jax.tree.structure(params[name]):
-                raise ValueError(f"initial_params[{name!r}] must match the structure of params[{name!r}]")
-            params[name] = jax.tree.map(jnp.asarray, value)
-        state = state.replace(params=params)
-    state = shard_seeds(state, config.num_seeds)
-    checkpointer, progress_path, done = None, None, {"chunks": 0, "wall_s": 0.0, "target_reached": None}
-    if out_dir is not None:
-        checkpointer = Checkpointer(out_dir, config)
-        progress_path = Path(out_dir) / "progress.json"
-        loggers.append(JsonLinesLogger(Path(out_dir) / "metrics.jsonl"))
-        latest = checkpointer.latest_step()
-        if latest is not None:
-            state = checkpointer.restore(latest, state)
-            if progress_path.exists():
-                done = json.loads(progress_path.read_text())
-            done["chunks"] = latest
-    log = MultiLogger(*loggers)
+    state = initial_state(trainer, config, initial_params)
+    run_files = RunFiles(out_dir, config) if out_dir is not None else None
+    done = {"chunks": 0, "wall_s": 0.0, "target_reached": None}
+    if run_files is not None:
+        state, done = run_files.restore(state, done)
+    log = MultiLogger(logger or NoOpLogger(), *([run_files.logger] if run_files is not None else []))
 
     compile_start = time.perf_counter()
     chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
-    eval_fns = {
-        split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))) for split in eval_splits
-    }
+    evaluate = make_evaluator(trainer, config, eval_splits, env.num_goals)
     compile_s = time.perf_counter() - compile_start
-    eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
-
-    def evaluate(chunk_index: int) -> dict[str, dict[str, Any]]:
-        keys = jax.random.split(jax.random.fold_in(eval_root, chunk_index), config.num_seeds)
-        records = {split: jax.device_get(fn(state.params, keys)) for split, fn in eval_fns.items()}
-        return {split: summarize_eval(record, env.num_goals) for split, record in records.items()}
 
     history: list[dict[str, Any]] = []
     final_eval: dict[str, dict[str, Any]] = {}
@@ -436,23 +497,26 @@ def run_ppo(
         chunk_s = time.perf_counter() - start
         wall_s += chunk_s
         env_steps = (chunk_index + 1) * sizes.env_steps_per_chunk
-        row = {"train/env_steps": env_steps, "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
-               "train/chunk_s": chunk_s, "train/wall_s": wall_s, **_chunk_metrics(metrics)}  # fmt: skip
+        row = {
+            "train/env_steps": env_steps,
+            "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
+            "train/chunk_s": chunk_s,
+            "train/wall_s": wall_s,
+            **_chunk_metrics(metrics),
+        }
         if chunk_index == done["chunks"]:
             row["train/compile_s"] = compile_s
         last = chunk_index == sizes.num_chunks - 1
         if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
-            final_eval = evaluate(chunk_index)
+            final_eval = evaluate(state.params, chunk_index)
             for split, summary in final_eval.items():
                 row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
             success = final_eval.get("train", next(iter(final_eval.values())))["success"]
             if target_success is not None and done["target_reached"] is None and success >= target_success:
                 done["target_reached"] = {"env_steps": env_steps, "wall_s": wall_s, "success": success}
                 stop = stop_at_target
-        if checkpointer is not None:
-            checkpointer.save(chunk_index + 1, state)
-            write_json_atomic(progress_path, {"chunks": chunk_index + 1, "wall_s": wall_s,
-                                              "target_reached": done["target_reached"]})  # fmt: skip
+        if run_files is not None:
+            run_files.save(chunk_index + 1, state, wall_s, done["target_reached"])
         history.append(row)
         log.write(chunk_index + 1, row)
         bar.update(1)
@@ -460,9 +524,9 @@ def run_ppo(
         bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
     bar.close()
     if not final_eval and eval_splits:
-        final_eval = evaluate(sizes.num_chunks)
-    if checkpointer is not None:
-        checkpointer.close()
+        final_eval = evaluate(state.params, sizes.num_chunks)
+    if run_files is not None:
+        run_files.close()
     log.close()
     return PPOResult(
         state=state,

@@ -22,16 +22,49 @@ class LearningCurve:
     success: Mapping[str, np.ndarray]
 
 
-def plot_learning_curves(curves: Mapping[str, LearningCurve], path: str | Path, title: str = "") -> Path:
-    """One panel per instruction split; mean +- std over seeds per method (Fig. 4 style). Writes a PNG."""
+@dataclass(frozen=True)
+class GoalCurves:
+    """Success per goal over env steps, pooled over seeds (one method, one instruction split).
+
+    Attributes:
+        env_steps: (T,) env steps at each evaluation.
+        success: (T, num_goals) success rates in [0, 1]; NaN where a goal had no episode.
+        names: (num_goals,) goal names.
+        split: the instruction split evaluated.
+    """
+
+    env_steps: np.ndarray
+    success: np.ndarray
+    names: Sequence[str]
+    split: str = "train"
+
+
+def plot_learning_curves(
+    curves: Mapping[str, LearningCurve], path: str | Path, title: str = "", per_goal: GoalCurves | None = None
+) -> Path:
+    """One panel per instruction split; mean +- std over seeds per method (Fig. 4 style). Writes a PNG.
+
+    With ``per_goal`` a last panel draws one line per goal (e.g. kitchen's six sub-tasks), so a stalled goal shows.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     splits = sorted({split for curve in curves.values() for split in curve.success}, key=["train", "test"].index)
-    fig, axes = plt.subplots(1, len(splits), figsize=(5 * len(splits), 3.6), squeeze=False)
-    for ax, split in zip(axes[0], splits, strict=True):
+    panels = len(splits) + (per_goal is not None)
+    fig, axes = plt.subplots(1, panels, figsize=(5 * panels, 3.6), squeeze=False)
+    if per_goal is not None:
+        ax = axes[0][-1]
+        for goal, name in enumerate(per_goal.names):
+            ax.plot(per_goal.env_steps, np.asarray(per_goal.success, float)[:, goal] * 100, label=name)
+        ax.set_title(f"per goal, pooled over seeds ({per_goal.split} instructions)")
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("success rate (%)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax, split in zip(axes[0], splits, strict=False):
         for method, curve in curves.items():
             if split not in curve.success:
                 continue

@@ -65,6 +65,28 @@ class TalarConfig:
         """Tuples per referential-game step: ``rg_batch_size``, else ``batch_size``."""
         return self.rg_batch_size or self.batch_size
 
+    def referential_game_fields(self) -> dict[str, Any]:
+        """Every setting the referential game reads (the generator's included): its stage key's share."""
+        return {
+            "spec": self.spec,
+            "generator_hidden": self.generator_hidden,
+            "receiver_hidden": self.receiver_hidden,
+            "gumbel_temperature": self.gumbel_temperature,
+            "rg_learning_rate": self.rg_learning_rate,
+            "referential_batch_size": self.referential_batch_size,
+            "rg_steps": self.rg_steps,
+            "rg_all_tokens": self.rg_all_tokens,
+        }
+
+    def translator_fields(self) -> dict[str, Any]:
+        """Every setting a translator reads (its target spec comes with the targets): its stage key's share."""
+        return {
+            "translator_hidden": self.translator_hidden,
+            "translator_learning_rate": self.translator_learning_rate,
+            "batch_size": self.batch_size,
+            "translator_steps": self.translator_steps,
+        }
+
     def __post_init__(self):
         for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size"):
             if getattr(self, name) is not None and getattr(self, name) < 1:

@@ -1,16 +1,10 @@
 """Test configuration: CPU XLA flags and a persistent compile cache, set before JAX starts."""
 
-import os
+from talar_jax.runtime import configure
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
-if "--xla_cpu_use_fusion_emitters=false" not in os.environ["XLA_FLAGS"]:
-    os.environ["XLA_FLAGS"] += " --xla_cpu_use_fusion_emitters=false"
+configure()
 
-import jax  # noqa: E402
 import pytest  # noqa: E402
-
-jax.config.update("jax_compilation_cache_dir", os.path.expanduser("~/.cache/talar-jax/jax"))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 
 def pytest_addoption(parser):

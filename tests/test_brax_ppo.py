@@ -14,8 +14,9 @@ def test_brax_ppo_trains_a_few_iterations_on_clevr():
     # MuJoCo C physics keeps the compile small; brax sees 40 float scores per action and the env takes the argmax.
     env = envs.make("clevr", physics="c")
     progress = []
-    network_factory = functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(32,),
-                                        value_hidden_layer_sizes=(32,))  # fmt: skip
+    network_factory = functools.partial(
+        ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(32,), value_hidden_layer_sizes=(32,)
+    )
     make_policy, params, metrics = ppo.train(
         environment=env,
         num_timesteps=2 * 8 * 10 * 4,  # two training iterations

@@ -4,6 +4,7 @@ The runs use the small BERT folder shipped with the tests (the default encoder i
 tests/test_language.py) so that building the language caches takes seconds.
 """
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import tyro
 
 from experiments import clevr, kitchen
 from experiments.compare import CompareArgs, base_config, compare
+from experiments.pipeline import CLI_CONFIG, ExperimentConfig, default_config, resolve
 
 TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
 QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
@@ -61,8 +63,8 @@ def test_clevr_quick_end_to_end(clevr_run, capsys):
 
 def test_compare_quick_runs_baselines_on_shared_stages(clevr_run):
     out, _ = clevr_run
-    final = compare(CompareArgs(env="clevr", methods=("talar", "onehot", "bert-binary"), seeds=2, out=out,
-                                quick=True, encoder=TINY_BERT, progress=False))  # fmt: skip
+    experiment = default_config("clevr", seeds=2, out=out, quick=True, encoder=TINY_BERT, progress=False)
+    final = compare(CompareArgs(experiment=experiment, methods=("talar", "onehot", "bert-binary")))
     assert set(final) == {"TALAR", "One-hot", "BERT-binary"}
     assert (out / "compare.png").stat().st_size > 0
     assert "| One-hot |" in (out / "compare.md").read_text()
@@ -77,20 +79,56 @@ def test_kitchen_quick_end_to_end(tmp_path):
     assert oracle["collector"] == "scripted"  # kitchen's default collector covers all six sub-tasks
 
 
-def test_bad_experiment_options_fail_clearly(tmp_path):
-    with pytest.raises(ValueError, match="unknown method 'nope'"):
-        clevr.main(["--method", "nope", "--out", str(tmp_path)])
-    with pytest.raises(ValueError, match="unknown sentence readout 'cls'"):
-        clevr.main(["--sentence-readout", "cls", "--out", str(tmp_path)])
-    with pytest.raises(ValueError, match="num-patterns"):
-        kitchen.main(["--num-patterns", "3", "--out", str(tmp_path)])
-    with pytest.raises(ValueError, match="valid methods"):
-        compare(CompareArgs(methods=("talar", "bogus"), out=tmp_path))
+def _error_line(capsys, main, argv) -> str:
+    """Runs a command's ``main`` expecting exit status 2; returns its single stderr line."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err, err
+    return err
+
+
+def test_bad_experiment_options_fail_with_one_line_before_any_stage(tmp_path, capsys):
+    from experiments import compare as compare_module
+    from experiments import oracle
+
+    out = tmp_path / "never"
+    assert "unknown method 'nope'" in _error_line(capsys, clevr.main, ["--method", "nope", "--out", str(out)])
+    assert "unknown sentence readout 'cls'" in _error_line(
+        capsys, clevr.main, ["--sentence-readout", "cls", "--out", str(out)]
+    )
+    assert "num-patterns" in _error_line(capsys, kitchen.main, ["--num-patterns", "3", "--out", str(out)])
+    # the encoder folder is checked before the oracle stage runs
+    assert "no config.json" in _error_line(capsys, kitchen.main, ["--encoder", str(tmp_path), "--out", str(out)])
+    assert "posture_targets" in _error_line(
+        capsys, kitchen.main, ["--env-options", "posture_targets", "bogus", "--out", str(out)]
+    )
+    argv = ["--methods", "talar", "bogus", "--out", str(out)]
+    assert "valid methods" in _error_line(
+        capsys, lambda a: compare_module.main_with(CompareArgs, compare, a, None), argv
+    )
+    assert "unknown experiment env" in _error_line(capsys, oracle.main, ["--env", "nowhere", "--out", str(out)])
+    assert not out.exists()  # nothing ran
+
+
+def test_compare_nests_the_env_commands_config(tmp_path):
+    base = ExperimentConfig(out=tmp_path)
     with pytest.raises(ValueError, match="--ifp-env-steps must be >= 1"):
-        compare(CompareArgs(ifp_env_steps=0, out=tmp_path))
-    assert base_config(CompareArgs(ifp_env_steps=300_000, out=tmp_path)).ifp.total_env_steps == 300_000
-    assert base_config(CompareArgs(out=tmp_path)).talar == clevr.DEFAULT.talar  # same TL settings as the command
-    parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"])
+        base_config(CompareArgs(experiment=base, ifp_env_steps=0))
+    assert base_config(CompareArgs(experiment=base, ifp_env_steps=300_000)).ifp.total_env_steps == 300_000
+    assert base_config(CompareArgs(experiment=base)).talar == clevr.DEFAULT.talar  # same TL settings as the command
+    parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"], config=CLI_CONFIG)
     assert base_config(parsed).talar.gumbel_temperature == 2.0
-    assert base_config(CompareArgs(out=tmp_path)).sentence_readout == clevr.DEFAULT.sentence_readout
-    assert base_config(CompareArgs(out=tmp_path, sentence_readout="sentence")).sentence_readout == "sentence"
+    assert base_config(CompareArgs(experiment=base)).sentence_readout == clevr.DEFAULT.sentence_readout
+    readout = dataclasses.replace(base, sentence_readout="sentence")
+    assert base_config(CompareArgs(experiment=readout)).sentence_readout == "sentence"
+    kitchen_base = base_config(CompareArgs(experiment=ExperimentConfig(env="kitchen", out=tmp_path)))
+    assert kitchen_base.ifp == resolve(kitchen.DEFAULT).ifp and kitchen_base.env_options == kitchen.DEFAULT.env_options
+
+
+def test_python_api_and_command_line_make_the_same_run():
+    for env, command_default in (("clevr", clevr.DEFAULT), ("kitchen", kitchen.DEFAULT)):
+        assert resolve(ExperimentConfig(env=env)) == resolve(command_default)
+        parsed = tyro.cli(ExperimentConfig, default=command_default, args=[], config=CLI_CONFIG)
+        assert resolve(parsed) == resolve(ExperimentConfig(env=env))

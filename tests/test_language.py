@@ -176,10 +176,18 @@ def _write_tiny_bert(folder: Path, vocab: list[str], seed: int = 0, style: str =
     folder.mkdir(parents=True, exist_ok=True)
     hidden, layers, intermediate = 32, 2, 48
     config = {
-        "model_type": "bert", "vocab_size": len(vocab), "hidden_size": hidden, "num_hidden_layers": layers,
-        "num_attention_heads": 4, "intermediate_size": intermediate, "max_position_embeddings": 64,
-        "type_vocab_size": 2, "hidden_act": "gelu", "layer_norm_eps": 1e-12, "pad_token_id": 0,
-    }  # fmt: skip
+        "model_type": "bert",
+        "vocab_size": len(vocab),
+        "hidden_size": hidden,
+        "num_hidden_layers": layers,
+        "num_attention_heads": 4,
+        "intermediate_size": intermediate,
+        "max_position_embeddings": 64,
+        "type_vocab_size": 2,
+        "hidden_act": "gelu",
+        "layer_norm_eps": 1e-12,
+        "pad_token_id": 0,
+    }
     (folder / "config.json").write_text(json.dumps(config))
     (folder / "vocab.txt").write_text("\n".join(vocab) + "\n")
     rng = np.random.default_rng(seed)
@@ -198,10 +206,13 @@ def _write_tiny_bert(folder: Path, vocab: list[str], seed: int = 0, style: str =
     for layer in range(layers):
         base = f"encoder.layer.{layer}."
         for name, (out_size, in_size) in {
-            "attention.self.query": (hidden, hidden), "attention.self.key": (hidden, hidden),
-            "attention.self.value": (hidden, hidden), "attention.output.dense": (hidden, hidden),
-            "intermediate.dense": (intermediate, hidden), "output.dense": (hidden, intermediate),
-        }.items():  # fmt: skip
+            "attention.self.query": (hidden, hidden),
+            "attention.self.key": (hidden, hidden),
+            "attention.self.value": (hidden, hidden),
+            "attention.output.dense": (hidden, hidden),
+            "intermediate.dense": (intermediate, hidden),
+            "output.dense": (hidden, intermediate),
+        }.items():
             tensors[f"{base}{name}.weight"] = normal(out_size, in_size)
             tensors[f"{base}{name}.bias"] = normal(out_size)
         for norm in ("attention.output.LayerNorm", "output.LayerNorm"):

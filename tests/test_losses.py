@@ -122,8 +122,10 @@ def test_reward_normalization_matches_sb3_style_reference():
         returns = returns * gamma + rewards[t]
         batch_mean, batch_var, batch_count = returns.mean(), returns.var(), envs
         delta, total = batch_mean - mean, count + batch_count
-        mean, var = mean + delta * batch_count / total, (var * count + batch_var * batch_count
-                                                         + delta**2 * count * batch_count / total) / total
+        mean, var = (
+            mean + delta * batch_count / total,
+            (var * count + batch_var * batch_count + delta**2 * count * batch_count / total) / total,
+        )
         count = total
         expected.append(np.clip(rewards[t] / np.sqrt(var + 1e-8), -10, 10))
         returns[dones[t] > 0] = 0.0

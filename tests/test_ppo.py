@@ -8,13 +8,21 @@ import numpy as np
 import pytest
 
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler, InstructionTableConditioner
-from talar_jax.dataset import TaskDataset, collect_task_dataset
+from talar_jax.dataset import TaskDataset, collect_task_dataset, policy_behaviour
 from talar_jax.logging import ListLogger
+from talar_jax.networks import make_ppo_networks
 from talar_jax.ppo import PPOConfig, derive, make_train, run_ppo
 from tests.point_env import GOALS, SUCCESS_RADIUS, PointConfig, PointEnv
 
-CONFIG = PPOConfig(num_envs=16, rollout_length=32, total_env_steps=25_600, updates_per_chunk=10, num_seeds=2,
-                   eval_episodes=64, ent_coef=0.0)  # fmt: skip  # 5 chunks of 5120 steps
+CONFIG = PPOConfig(
+    num_envs=16,
+    rollout_length=32,
+    total_env_steps=25_600,
+    updates_per_chunk=10,
+    num_seeds=2,
+    eval_episodes=64,
+    ent_coef=0.0,
+)  # 5 chunks of 5120 steps
 TIMING_KEYS = ("train/sps", "train/chunk_s", "train/wall_s", "train/compile_s")
 
 
@@ -87,8 +95,9 @@ def test_continuous_learns_with_trainable_conditioner():
     lookup = np.arange(8, dtype=np.int32).reshape(4, 2)
     conditioner = InstructionTableConditioner(table, {"train": (lookup, [2, 2, 2, 2])}, trainable=True)
     config = dataclasses.replace(CONFIG, num_seeds=1, total_env_steps=20_480)
-    result = run_ppo(config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False,
-                     eval_splits=("train",))  # fmt: skip
+    result = run_ppo(
+        config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False, eval_splits=("train",)
+    )
     assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
     assert not np.allclose(result.params["conditioner"]["table"][0], table)  # optimised jointly with the policy
 
@@ -98,8 +107,17 @@ def test_collect_task_dataset(discrete_run, tmp_path):
     params = jax.tree.map(lambda leaf: leaf[0], result.params)
     # Language: goal g has training instructions {10g, 10g+1}; goal 3 has none, so its episodes are skipped.
     sampler = InstructionSampler({"train": ([[0, 1], [10, 11], [20, 21], [-1, -1]], [2, 2, 2, 0])})
-    dataset = collect_task_dataset(PointEnv(), params, GoalOneHotConditioner(4), 300, jax.random.PRNGKey(3),
-                                   instruction_sampler=sampler, num_envs=32, config={"env": "point"})  # fmt: skip
+    networks = make_ppo_networks(2, 4, PointEnv().action_spec)
+    behaviour = policy_behaviour(networks, params, GoalOneHotConditioner(4))
+    dataset = collect_task_dataset(
+        PointEnv(),
+        behaviour,
+        300,
+        jax.random.PRNGKey(3),
+        sampler,
+        num_envs=32,
+        config={"env": "point"},
+    )
     assert len(dataset) == 300 and dataset.states.shape == (300, 2) and dataset.actions.shape == (300,)
     assert set(np.unique(dataset.goal_ids)) <= {0, 1, 2}
     np.testing.assert_array_equal(dataset.instruction_ids // 10, dataset.goal_ids)
@@ -128,8 +146,21 @@ def test_oracle_command_quick(tmp_path):
     import sys
 
     out = tmp_path / "oracle"
-    command = [sys.executable, "-m", "experiments.oracle", "--env", "clevr", "--out", str(out), "--quick",
-               "--no-progress", "--num-tuples", "200", "--collector", "policy"]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "experiments.oracle",
+        "--env",
+        "clevr",
+        "--out",
+        str(out),
+        "--quick",
+        "--no-progress",
+        "--num-tuples",
+        "200",
+        "--collector",
+        "policy",
+    ]
     subprocess.run(command, check=True, timeout=600, capture_output=True)
     summary = json.loads((out / "oracle.json").read_text())
     assert summary["collector"] == "policy" and len(summary["eval"]["train"]["success_per_goal"]) == 80
@@ -139,7 +170,8 @@ def test_oracle_command_quick(tmp_path):
 
 def test_scripted_clevr_collector_pushes_only_the_source_ball(tmp_path):
     from envs.clevr import tasks
-    from experiments.oracle import OracleArgs, run, scripted_collector
+    from experiments.oracle import OracleArgs, run
+    from experiments.recipes import get_recipe
 
     args = OracleArgs(env="clevr", out=tmp_path / "oracle", num_tuples=600, collect_envs=64, progress=False)
     success = run(args)
@@ -153,8 +185,8 @@ def test_scripted_clevr_collector_pushes_only_the_source_ball(tmp_path):
     assert bool(jnp.all(jax.vmap(tasks.goal_success)(final, jnp.asarray(dataset.goal_ids))))
     with pytest.raises(ValueError, match="unknown collector"):
         run(OracleArgs(env="clevr", out=tmp_path / "c", collector="magic"))
-    with pytest.raises(ValueError, match="no scripted collector for env 'kitchen-all'"):
-        scripted_collector("kitchen-all")
+    with pytest.raises(ValueError, match="unknown experiment env 'kitchen-all'; valid: clevr, kitchen"):
+        get_recipe("kitchen-all")
 
 
 def test_scripted_kitchen_collector_covers_all_six_subtasks(tmp_path):

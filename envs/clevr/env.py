@@ -85,9 +85,7 @@ class ClevrEnv(Env):
             if config.task not in TASK_KINDS:
                 raise ValueError(f"unknown task {config.task!r}; choose one of {', '.join(TASK_KINDS)}")
             if config.action_type not in ACTION_TYPES:
-                raise ValueError(
-                    f"unknown action_type {config.action_type!r}; choose one of {', '.join(ACTION_TYPES)}"
-                )
+                raise ValueError(f"unknown action_type {config.action_type!r}; choose one of {', '.join(ACTION_TYPES)}")
             if config.action_type == "collect" and config.task != "goal":
                 raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
             if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:

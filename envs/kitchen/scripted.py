@@ -186,7 +186,9 @@ def noisy_scripted_action(state, rng: jax.Array, noise_scale: float = 0.1) -> ja
     adds. Used to collect a task dataset that covers all six sub-tasks.
     """
     if "steps" not in state.info:
-        raise ValueError("noisy_scripted_action needs state.info['steps']: wrap the env in envs.wrappers.EpisodeWrapper")
+        raise ValueError(
+            "noisy_scripted_action needs state.info['steps']: wrap the env in envs.wrappers.EpisodeWrapper"
+        )
     action = scripted_action(state.obs, state.task.goal, state.info["steps"])
     noise = noise_scale * jax.random.normal(rng, action.shape, action.dtype)
     return jnp.clip(action + noise, -1.0, 1.0)

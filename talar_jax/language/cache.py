@@ -33,10 +33,18 @@ from talar_jax.language.instructions import canonical_env, goal_lookup, load_ins
 CACHE_ENV_VAR = "TALAR_JAX_CACHE"
 CACHE_FORMAT = 2
 _ARRAY_FIELDS = (
-    "goal_ids", "is_train", "sentence_embeddings", "token_ids", "token_lengths",
-    "prefix_sentence", "prefix_next_token", "prefix_next_token_compact", "token_vocab", "sentence_prefix_start",
+    "goal_ids",
+    "is_train",
+    "sentence_embeddings",
+    "token_ids",
+    "token_lengths",
+    "prefix_sentence",
+    "prefix_next_token",
+    "prefix_next_token_compact",
+    "token_vocab",
+    "sentence_prefix_start",
     "sentence_prefix_count",
-)  # fmt: skip
+)
 
 
 SENTENCE_READOUTS: tuple[str, ...] = ("sentence", "sentence+prefixes")
@@ -223,10 +231,14 @@ def _save(cache: EmbeddingCache, path: Path) -> None:
     """Writes atomically: a temporary file in the same folder, fsync, then ``os.replace``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {
-        "format": CACHE_FORMAT, "env": cache.env, "encoder_name": cache.encoder_name,
-        "weights_sha256": cache.weights_sha256, "key": cache.key, "embedding_dim": cache.embedding_dim,
+        "format": CACHE_FORMAT,
+        "env": cache.env,
+        "encoder_name": cache.encoder_name,
+        "weights_sha256": cache.weights_sha256,
+        "key": cache.key,
+        "embedding_dim": cache.embedding_dim,
         "num_goals": cache.num_goals,
-    }  # fmt: skip
+    }
     arrays = {name: getattr(cache, name) for name in _ARRAY_FIELDS}
     # many sentences share prefixes (CLEVR: 18.6k prefixes, 4.6k distinct): store each distinct embedding once
     arrays["prefix_distinct_embeddings"], arrays["prefix_distinct_index"] = np.unique(
@@ -265,10 +277,17 @@ def _load(path: Path, key: str) -> EmbeddingCache | None:
         return None
     goal_sentences, goal_counts = goal_lookup(arrays["goal_ids"], meta["num_goals"])
     return EmbeddingCache(
-        env=meta["env"], encoder_name=meta["encoder_name"], weights_sha256=meta["weights_sha256"], key=key,
-        embedding_dim=meta["embedding_dim"], num_goals=meta["num_goals"], sentences=sentences,
-        goal_sentences=goal_sentences, goal_sentence_counts=goal_counts, **arrays,
-    )  # fmt: skip
+        env=meta["env"],
+        encoder_name=meta["encoder_name"],
+        weights_sha256=meta["weights_sha256"],
+        key=key,
+        embedding_dim=meta["embedding_dim"],
+        num_goals=meta["num_goals"],
+        sentences=sentences,
+        goal_sentences=goal_sentences,
+        goal_sentence_counts=goal_counts,
+        **arrays,
+    )
 
 
 def build_cache(

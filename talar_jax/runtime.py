@@ -1,0 +1,27 @@
+"""Process set-up shared by the entry points (experiments, benchmarks, tests); call before JAX starts.
+
+- the CPU XLA flag MJX needs (deep kinematic chains otherwise compile into exponentially slow code);
+- JAX's persistent compilation cache, so a rerun or a resumed run loads its programs instead of compiling them;
+- line-buffered stdout, so progress lines reach a log file as they are printed.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
+COMPILE_CACHE_DIR = os.path.join(os.environ.get("TALAR_JAX_CACHE", "~/.cache/talar-jax"), "jax")
+
+
+def configure(compile_cache: bool = True) -> None:
+    """Sets the XLA flag (when JAX has not started yet), the compile cache and line-buffered stdout."""
+    if CPU_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + CPU_XLA_FLAG).strip()
+    if compile_cache:
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", os.path.expanduser(COMPILE_CACHE_DIR))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    if hasattr(sys.stdout, "reconfigure") and not sys.stdout.isatty():
+        sys.stdout.reconfigure(line_buffering=True)

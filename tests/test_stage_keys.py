@@ -1,0 +1,112 @@
+"""Stage keys come from exactly the settings a stage reads: change one and the stage reruns, change another and
+it is reused (the keys are computed without running anything)."""
+
+import dataclasses
+
+import pytest
+
+from experiments.methods import METHODS
+from experiments.pipeline import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, resolve, stage_keys
+from talar_jax.ppo import PPOConfig
+from talar_jax.talar import TalarConfig
+from talar_jax.task_language import TaskLanguageSpec
+
+UPSTREAM, CACHE = "oracle-key", "cache-key"
+
+
+def _changed(value, name):
+    """A different valid value of a config field."""
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, int):
+        return value * 2 if value else 3
+    if isinstance(value, float):
+        return value * 0.5 if value else 0.25
+    if isinstance(value, tuple):
+        return tuple(v * 2 for v in value)
+    if isinstance(value, TaskLanguageSpec):
+        return dataclasses.replace(value, num_predicates=value.num_predicates + 2)
+    if value is None:
+        return {"rg_batch_size": 32, "num_patterns": 5, "encoder": "/some/bert", "physics": "mjx"}.get(name, 7)
+    if isinstance(value, dict):
+        return {**value, "posture_targets": "talar"} if value else {"noise_ratio": "0.0"}
+    if name == "sentence_readout":
+        return "sentence"
+    if name == "physics":
+        return "mjx" if value == "c" else "c"
+    if name == "out":
+        return value / "elsewhere"
+    raise AssertionError(f"no change defined for {name}={value!r}")
+
+
+def _variants(config: ExperimentConfig):
+    """(dotted field name, config with that one field changed) for every leaf of a resolved config."""
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if field.name in ("env", "method"):
+            continue
+        if isinstance(value, (TalarConfig, PPOConfig)):
+            for sub in dataclasses.fields(value):
+                if isinstance(value, PPOConfig) and sub.name in ("num_seeds", "seed"):
+                    continue  # resolve() sets them from seeds / seed
+                changed = dataclasses.replace(value, **{sub.name: _changed(getattr(value, sub.name), sub.name)})
+                yield f"{field.name}.{sub.name}", dataclasses.replace(config, **{field.name: changed})
+        else:
+            yield field.name, dataclasses.replace(config, **{field.name: _changed(value, field.name)})
+
+
+def _keys(config):
+    return stage_keys(resolve(config), UPSTREAM, CACHE)
+
+
+RG_READS = {
+    "quick",
+    "seeds",
+    "seed",
+    "talar.spec",
+    "talar.generator_hidden",
+    "talar.receiver_hidden",
+    "talar.gumbel_temperature",
+    "talar.rg_learning_rate",
+    "talar.rg_batch_size",
+    "talar.rg_steps",
+    "talar.rg_all_tokens",
+}  # quick: its smoke budgets shorten the game
+TRANSLATOR_READS = RG_READS | {
+    "sentence_readout",
+    "talar.translator_hidden",
+    "talar.translator_learning_rate",
+    "talar.batch_size",
+    "talar.translator_steps",
+}
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_the_ifp_reruns_when_any_setting_changes_and_not_for_out_or_progress(method):
+    base = default_config("clevr", method=method, physics="c")
+    reference = _keys(base)
+    for name, variant in _variants(base):
+        changed = _keys(variant)["ifp"] != reference["ifp"]
+        assert changed == (name not in KEY_EXCLUDED_FIELDS), f"{method}: changing {name} -> ifp rerun {changed}"
+
+
+def test_referential_game_and_translator_keys_follow_exactly_what_they_read():
+    base = default_config("clevr", physics="c")
+    reference = _keys(base)
+    for name, variant in _variants(base):
+        keys = _keys(variant)
+        rg_changed = keys["talar/task_language"] != reference["talar/task_language"]
+        translator_changed = keys["talar/translator"] != reference["talar/translator"]
+        assert rg_changed == (name in RG_READS), f"changing {name}: referential game rerun {rg_changed}"
+        assert translator_changed == (name in TRANSLATOR_READS), f"changing {name}: translator {translator_changed}"
+
+
+def test_bert_encoding_size_reaches_the_ifp_key():
+    """The defect this file guards: BERT-binary's encoding size comes from --talar.spec, which its key missed."""
+    base = default_config("clevr", method="bert-binary", physics="c")
+    wider = dataclasses.replace(base, talar=dataclasses.replace(base.talar, spec=TaskLanguageSpec(num_predicates=8)))
+    assert _keys(base)["bert-binary"] != _keys(wider)["bert-binary"]
+    assert _keys(base)["ifp"] != _keys(wider)["ifp"]
+    # ... and an RG-only setting, which BERT-binary does not read, leaves its encoding key alone
+    hotter = dataclasses.replace(base, talar=dataclasses.replace(base.talar, gumbel_temperature=8.0))
+    assert _keys(base)["bert-binary"] == _keys(hotter)["bert-binary"]
