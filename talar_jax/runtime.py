@@ -2,7 +2,9 @@
 
 - the CPU XLA flag MJX needs (deep kinematic chains otherwise compile into exponentially slow code);
 - JAX's persistent compilation cache, so a rerun or a resumed run loads its programs instead of compiling them;
-- line-buffered stdout, so progress lines reach a log file as they are printed.
+- line-buffered stdout, so progress lines reach a log file as they are printed;
+- XLA's C++ log at errors only (``TF_CPP_MIN_LOG_LEVEL=2`` unless set): loading a cached program otherwise prints a
+  version-compatibility warning on every run.
 """
 
 from __future__ import annotations
@@ -15,7 +17,12 @@ COMPILE_CACHE_DIR = os.path.join(os.environ.get("TALAR_JAX_CACHE", "~/.cache/tal
 
 
 def configure(compile_cache: bool = True) -> None:
-    """Sets the XLA flag (when JAX has not started yet), the compile cache and line-buffered stdout."""
+    """Sets the XLA flag and log level (when JAX has not started yet), the compile cache and line-buffered stdout.
+
+    JAX does not cache programs that call back into Python, which includes every program stepping the C physics
+    backend: those compile again in each process.
+    """
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     if CPU_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + CPU_XLA_FLAG).strip()
     if compile_cache:

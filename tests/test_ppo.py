@@ -10,7 +10,7 @@ import pytest
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler, InstructionTableConditioner
 from talar_jax.dataset import TaskDataset, collect_task_dataset, policy_behaviour
 from talar_jax.logging import ListLogger
-from talar_jax.networks import make_ppo_networks
+from talar_jax.networks import init_observation_stats, make_ppo_networks, update_observation_stats
 from talar_jax.ppo import PPOConfig, derive, make_train, run_ppo
 from tests.point_env import GOALS, SUCCESS_RADIUS, PointConfig, PointEnv
 
@@ -100,6 +100,23 @@ def test_continuous_learns_with_trainable_conditioner():
     )
     assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
     assert not np.allclose(result.params["conditioner"]["table"][0], table)  # optimised jointly with the policy
+
+
+def test_observation_normalisation_statistics_and_learning():
+    rng = np.random.default_rng(0)
+    first, second = rng.normal(2.0, 3.0, (50, 3)), rng.normal(-1.0, 0.5, (70, 3))
+    stats = update_observation_stats(update_observation_stats(init_observation_stats(3), first), second)
+    both = np.concatenate([first, second])
+    np.testing.assert_allclose(stats["mean"], both.mean(0), rtol=1e-4)
+    np.testing.assert_allclose(stats["var"], both.var(0), rtol=1e-3)
+    config = dataclasses.replace(CONFIG, num_seeds=1, total_env_steps=20_480, normalize_observations=True)
+    env = PointEnv(PointConfig(continuous=True))
+    result = run_ppo(config, env, GoalOneHotConditioner(4), None, progress=False, eval_splits=("train",))
+    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    learned = jax.tree.map(lambda leaf: leaf[0], result.params["obs_normalizer"])
+    # statistics of every observation acted on, untouched by the optimiser (Adam would move count and var too)
+    np.testing.assert_allclose(learned["count"], 20_480, rtol=1e-6)
+    assert np.all(np.asarray(learned["var"]) > 0.01) and np.all(np.abs(np.asarray(learned["mean"])) < 2.0)
 
 
 def test_collect_task_dataset(discrete_run, tmp_path):
