@@ -55,7 +55,13 @@ def main_with(cls, function, argv: list[str] | None, description: str | None):
     """Parses ``cls`` from the command line and calls ``function``; bad options: one ``error:`` line, status 2."""
     args = tyro.cli(cls, args=argv, description=description, config=CLI_CONFIG)
     try:
-        (base_config(args) if isinstance(args, CompareArgs) else base_config(args.comparison(args.patterns[0])))
+        if isinstance(args, CompareArgs):
+            base_config(args)
+        else:  # PatternsArgs: every column's comparison
+            if not args.patterns:
+                raise ValueError("--patterns needs at least one pattern count")
+            for k in args.patterns:
+                base_config(args.comparison(k))
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
