@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 import envs
-from benchmarks.original_style import ORIGINAL_STYLE
+from benchmarks.original_style import original_steps_per_second
 
 RESULTS_DIR = Path(__file__).parent / "results"
 
@@ -94,15 +94,15 @@ def run(name: str, quick: bool = False) -> dict:
     min_seconds = 0.5 if quick else config.min_seconds
     original_steps = max(50, config.original_steps // 4) if quick else config.original_steps
     rows = []
-    ORIGINAL_STYLE[name](max(10, original_steps // 10))  # warm-up (model load, caches)
-    original_before = ORIGINAL_STYLE[name](original_steps)
+    original_steps_per_second(name, max(10, original_steps // 10))  # warm-up (model load, caches)
+    original_before = original_steps_per_second(name, original_steps)
     print(f"  measured original style: {original_before:.0f} steps/s", flush=True)
     for physics, batches in (("c", config.c_batches), ("mjx", config.mjx_batches)):
         for batch in batches[:2] if quick else batches:
             rows.append(_time_backend(name, physics, batch, config, min_seconds))
             print(f"  measured {physics} batch {batch}: {rows[-1]['steps_per_s']:.0f} steps/s", flush=True)
     # the machine is shared: the baseline is timed before and after the JAX rows, ratios use the mean
-    original_after = ORIGINAL_STYLE[name](original_steps)
+    original_after = original_steps_per_second(name, original_steps)
     original = (original_before + original_after) / 2
     rows.insert(
         0,

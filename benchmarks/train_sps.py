@@ -4,8 +4,9 @@
 
 talar-jax: ``make_train`` chunk (jit + vmap, ``num_envs`` envs), timed after compilation. Reference: the
 original pipeline's style, stable-baselines3 PPO with 2 envs (DummyVecEnv, n_steps 512, minibatch 128,
-10 epochs, [32, 64, 64] tanh, VecNormalize on rewards) on a gymnasium adapter of the same env with C physics
-(jitted single-env reset/step; observation = [obs, goal one-hot]). Needs the ``benchmark`` extra
+10 epochs, [32, 64, 64] tanh, VecNormalize on rewards) driving the original-style numpy envs of
+``benchmarks.original_style`` (MuJoCo C stepped from Python, as the original ran; observation = [obs, goal
+one-hot]). Needs the ``benchmark`` extra
 (``pip install torch==2.13.0`` first, then ``pip install stable-baselines3 gymnasium``).
 Prints a table and writes ``benchmarks/results/train_sps.json``.
 """
@@ -19,11 +20,9 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import envs
-from envs.wrappers import EpisodeWrapper
 from talar_jax.conditioning import GoalOneHotConditioner
 from talar_jax.ppo import PPOConfig, derive, make_train
 
@@ -60,43 +59,38 @@ def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: i
 
 
 def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
-    """Env steps/s of SB3 PPO with 2 envs on a gymnasium adapter of the same env (C physics)."""
+    """Env steps/s of SB3 PPO with 2 envs driving the original-style numpy env (``benchmarks.original_style``: one
+    Python loop of ``mj_step`` substeps per action, as the original pipeline ran), observation = [obs, goal one-hot].
+    """
     import gymnasium
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+    from benchmarks.original_style import ORIGINAL_ENVS
+
     torch.set_num_threads(1)
-    base = EpisodeWrapper(envs.make(env_name, physics="c"))
-    reset_fn, step_fn = jax.jit(base.reset), jax.jit(base.step)
-    spec, num_goals = base.action_spec, base.num_goals
 
     class Adapter(gymnasium.Env):
         def __init__(self, seed: int):
-            size = base.observation_size + num_goals
+            self.env = ORIGINAL_ENVS[env_name](seed)
+            size = self.env.observation_size + self.env.num_goals
             self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (size,), np.float32)
-            if spec.kind == "discrete":
-                self.action_space = gymnasium.spaces.Discrete(spec.size)
+            if hasattr(self.env, "num_actions"):
+                self.action_space = gymnasium.spaces.Discrete(self.env.num_actions)
             else:
-                self.action_space = gymnasium.spaces.Box(spec.low, spec.high, (spec.size,), np.float32)
-            self.key = jax.random.PRNGKey(seed)
-            self.state = None
+                self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (self.env.action_size,), np.float32)
 
-        def _obs(self):
-            one_hot = np.eye(num_goals, dtype=np.float32)[int(self.state.task.goal)]
-            return np.concatenate([np.asarray(self.state.obs, np.float32), one_hot])
+        def _obs(self, obs: np.ndarray, info: dict) -> np.ndarray:
+            return np.concatenate([obs, np.eye(self.env.num_goals, dtype=np.float32)[info["goal"]]])
 
         def reset(self, *, seed=None, options=None):
-            self.key, key = jax.random.split(self.key)
-            self.state = reset_fn(key)
-            return self._obs(), {}
+            obs, info = self.env.reset(seed)
+            return self._obs(obs, info), info
 
         def step(self, action):
-            action = jnp.asarray(action, jnp.int32 if spec.kind == "discrete" else jnp.float32)
-            self.state = step_fn(self.state, action)
-            truncated = bool(self.state.info["truncation"] > 0.5)
-            terminated = bool(self.state.done > 0.5) and not truncated
-            return self._obs(), float(self.state.reward), terminated, truncated, {}
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            return self._obs(obs, info), reward, terminated, truncated, info
 
     vec = VecNormalize(DummyVecEnv([lambda i=i: Adapter(i) for i in range(2)]), norm_obs=False, norm_reward=True)
     policy_kwargs = {"net_arch": {"pi": [32, 64, 64], "vf": [32, 64, 64]}, "activation_fn": torch.nn.Tanh}
@@ -116,7 +110,7 @@ def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
     model.learn(total_timesteps=total_steps, reset_num_timesteps=False)
     seconds = time.perf_counter() - start
     return {
-        "impl": "sb3 (2 envs)",
+        "impl": "sb3 original",
         "env": env_name,
         "physics": "c",
         "num_envs": 2,

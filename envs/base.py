@@ -97,6 +97,13 @@ class Env(abc.ABC):
 
     config_class: ClassVar[type[EnvConfig]] = EnvConfig
     xml_path: ClassVar[Path]
+    render_camera: ClassVar[dict[str, Any]] = {
+        "lookat": (0.0, 0.0, 0.0),
+        "distance": 2.0,
+        "azimuth": 90.0,
+        "elevation": -45.0,
+    }
+    """Free camera of ``render`` (``lookat``, ``distance``, ``azimuth``, ``elevation``)."""
 
     def __init__(self, config: EnvConfig | None = None, physics: str = "mjx"):
         self.config = config if config is not None else self.config_class()
@@ -111,12 +118,23 @@ class Env(abc.ABC):
 
     # --- the functional API -------------------------------------------------------------------------
     @abc.abstractmethod
-    def reset(self, rng: jax.Array) -> State:
-        """Samples an initial state and a task."""
+    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
+        """Samples an initial state and a task (the task of goal id ``goal`` when given, for envs with goal ids)."""
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
         """Applies ``action`` and returns the next state."""
+
+    def render(self, qpos: np.ndarray, width: int = 320, height: int = 240) -> list[np.ndarray]:
+        """(T, nq) physics positions (e.g. ``state.data.qpos`` along an episode) -> T RGB frames (uint8).
+
+        Raises ``envs.render.RenderError`` when no OpenGL backend is available (see ``envs.render``).
+        """
+        from envs.render import render_frames
+
+        return render_frames(
+            self.mj_model, np.asarray(qpos).reshape(-1, self.mj_model.nq), self.render_camera, width, height
+        )
 
     # --- sizes --------------------------------------------------------------------------------------
     @property

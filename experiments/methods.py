@@ -177,9 +177,16 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
 
     def body(stage_dir: Path) -> dict[str, Any]:
         targets = jnp.asarray(targets_fn(stage_dir), jnp.float32)
-        fit = make_train_translator(config.talar, spec)
+        fit, timings = make_train_translator(config.talar, spec), {}
         params, losses = fit_seeds(
-            fit, ctx.seed_keys(name), targets, data, in_axes=(0, None), label=name, progress=config.progress
+            fit,
+            ctx.seed_keys(name),
+            targets,
+            data,
+            in_axes=(0, None),
+            label=name,
+            progress=config.progress,
+            timings=timings,
         )
         translate = jax.jit(jax.vmap(make_translate(config.talar, spec), in_axes=(0, None)))
         tables = np.asarray(translate(params, data.sentence_embeddings))
@@ -190,6 +197,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
             "translator_loss_end": losses[:, -max(1, losses.shape[1] // 20) :].mean(1).tolist(),
             "tl_quality": {k: [q[k] for q in quality] for k in quality[0]},
             "distinct_target_codes": [len(np.unique(np.asarray(t).round(), axis=0)) for t in targets],
+            **timings,
         }
 
     return run_stage(config.out, name, key, body)
@@ -202,14 +210,17 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
 
     def rg_body(stage_dir: Path) -> dict[str, Any]:
         fit = make_train_task_language(config.talar, cache.vocab_size, cache.max_tokens)
-        label = "talar/referential game"
-        params, losses = fit_seeds(fit, ctx.seed_keys("task_language"), data, label=label, progress=config.progress)
+        label, timings = "talar/referential game", {}
+        params, losses = fit_seeds(
+            fit, ctx.seed_keys("task_language"), data, label=label, progress=config.progress, timings=timings
+        )
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "losses.npy", losses)
         window = max(1, losses.shape[1] // 20)
         return {
             "rg_loss_start": losses[:, :window].mean(1).tolist(),
             "rg_loss_end": losses[:, -window:].mean(1).tolist(),
+            **timings,
         }
 
     rg = run_stage(config.out, "talar/task_language", keys["talar/task_language"], rg_body)

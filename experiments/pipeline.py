@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 import tyro
 
@@ -23,13 +24,21 @@ from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSet
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
 from experiments.recipes import get_recipe
+from talar_jax.agent import LANGUAGE_RECORD
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache, load_encoder
 from talar_jax.logging import TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
-from talar_jax.report import GoalCurves, LearningCurve, plot_learning_curves, plot_tsne, results_table
+from talar_jax.report import (
+    GoalCurves,
+    LearningCurve,
+    plot_deployment_strip,
+    plot_learning_curves,
+    plot_tsne,
+    results_table,
+)
 from talar_jax.stages import StageResult, run_stage, stable_hash, to_jsonable
 from talar_jax.talar import TalarConfig, make_task_language_data
 
@@ -304,6 +313,35 @@ def write_report(
     return summary
 
 
+def write_deployment_strip(config: ExperimentConfig, folder: Path, cache: EmbeddingCache, frames: int = 5) -> str:
+    """Paper Fig. 17/18: one learned episode of seed 0 per showcased goal, following the goal's first training
+    instruction, a few frames each (``deployment.png``). Returns a line saying what was written or why not (One-hot
+    cannot read a sentence; rendering needs an OpenGL backend)."""
+    from envs.render import RenderError
+    from talar_jax.agent import Agent, AgentError
+
+    try:
+        follower = Agent(folder, seed=0, physics=config.physics, check_encoder=False)
+    except AgentError as error:
+        return f"deployment strip: not written ({error})"
+    recipe = get_recipe(config.env)
+    names = recipe.goal_names()
+    goals = recipe.showcase_goals() if recipe.showcase_goals is not None else list(range(cache.num_goals))
+    rows = []
+    try:
+        for index, goal in enumerate(goals):
+            sentence = cache.sentences[int(cache.goal_sentences[goal][0])]
+            episode = follower.rollout(sentence, jax.random.key(index), goal=goal)
+            steps = np.linspace(0, episode.length, frames).round().astype(int)
+            outcome = "success" if episode.success else "no success"
+            label = f'"{sentence}" ({names[goal]}; {outcome} after {episode.length} steps)'
+            rows.append((label, follower.env.render(episode.qpos[steps], width=240, height=180)))
+    except RenderError as error:
+        return f"deployment strip: not written ({error})"
+    path = plot_deployment_strip(rows, folder / "deployment.png", title=f"{METHOD_LABELS[config.method]}, seed 0")
+    return f"deployment strip: {path}"
+
+
 def command(env: str):
     """``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``): ``default_config(env)``
     on the command line; a bad option prints one line and exits with status 2 before any stage runs."""
@@ -337,6 +375,8 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     start = time.perf_counter()
     stages: dict[str, StageResult] = {"oracle": stage_oracle(config)}
     cache = build_cache(config.env, config.encoder, progress=config.progress)
+    language = {"encoder_name": cache.encoder_name, "weights_sha256": cache.weights_sha256, "cache_key": cache.key}
+    write_json_atomic(folder / LANGUAGE_RECORD, language)
     dataset = TaskDataset.load(stages["oracle"].path / "dataset")
     env = make_env(config)
     data = make_task_language_data(dataset, cache, config.sentence_readout)
@@ -345,7 +385,8 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     stages.update(setup.stages)
     stages["ifp"] = stage_ifp(config, setup, env)
     summary = write_report(config, stages, setup, cache)
+    print(write_deployment_strip(config, folder, cache))
     summary["wall_s_this_call"] = time.perf_counter() - start
     print((folder / "results.md").read_text())
-    print(f"outputs in {folder}: config.json, results.md, summary.json, curves.png, tsne.png")
+    print(f"outputs in {folder}: config.json, results.md, summary.json, curves.png, tsne.png, deployment.png")
     return summary

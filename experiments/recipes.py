@@ -2,8 +2,9 @@
 
 A recipe names the env (``envs.make``), its goals, its scripted task-dataset collector, the oracle's budgets and
 the experiment defaults of the referential game, translator and IFP. The pipeline, the oracle and the
-comparison commands read recipes only; adding a third env means an env package (``envs/``), its instructions
-(``talar_jax/language``) and one ``register_recipe`` call here.
+comparison commands read recipes only; adding a third env means an env package (``envs/``) and, here, one
+``register_recipe`` call plus one ``talar_jax.language.register_instruction_format`` call saying how its instruction
+file is read (its ``default_file`` can live beside the env).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class EnvRecipe:
         talar: referential game and translator defaults of the experiment commands.
         ifp: the instruction-following policy's PPO defaults (the budget included).
         env_options: ``envs.make`` options of the IFP's env.
+        showcase_goals: () -> goal ids the report's deployment strip shows one episode of (None: every goal).
     """
 
     env: str
@@ -63,6 +65,7 @@ class EnvRecipe:
     talar: TalarConfig
     ifp: PPOConfig
     env_options: dict[str, str] = dataclasses.field(default_factory=dict)
+    showcase_goals: Callable[[], list[int]] | None = None
 
     @property
     def default_collector(self) -> str:
@@ -112,6 +115,13 @@ def _clevr_collector():
     return {"action_type": "collect"}, act, {"epsilon": CLEVR_SCRIPTED_EPSILON}
 
 
+def _clevr_showcase_goals() -> list[int]:
+    """The first goal of each relation (front, behind, left, right)."""
+    from envs.clevr.tasks import GOAL_RELATION, NUM_RELATIONS
+
+    return [int(list(GOAL_RELATION).index(relation)) for relation in range(NUM_RELATIONS)]
+
+
 register_recipe(
     EnvRecipe(
         env="clevr",
@@ -122,6 +132,7 @@ register_recipe(
         num_tuples=100_000,
         talar=EXPERIMENT_TALAR,
         ifp=dataclasses.replace(EXPERIMENT_IFP, total_env_steps=2_000_000),
+        showcase_goals=_clevr_showcase_goals,
     )
 )
 

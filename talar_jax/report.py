@@ -139,3 +139,40 @@ def results_table(final: Mapping[str, Mapping[str, np.ndarray]], title: str = ""
             cells.append(f"{rates.mean():.1f} ± {rates.std():.1f} (n={rates.size})" if rates.size else "-")
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def plot_deployment_strip(rows: Sequence[tuple[str, Sequence[np.ndarray]]], path: str | Path, title: str = "") -> Path:
+    """Paper Fig. 17/18 style: one row of frames per instruction (its sentence as the row's title), a PNG.
+
+    Args:
+        rows: (label, frames) per row; frames are (H, W, 3) uint8 images, the same count in every row.
+        path: output file.
+        title: figure title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = max(len(frames) for _, frames in rows)
+    height, width = rows[0][1][0].shape[:2]
+    panel = 2.4  # inches per frame's width
+    figure, axes = plt.subplots(
+        len(rows), columns, figsize=(panel * columns, (panel * height / width + 0.3) * len(rows) + 0.4), squeeze=False
+    )
+    figure.subplots_adjust(
+        left=0.01, right=0.99, bottom=0.01, top=1 - 0.5 / figure.get_figheight(), wspace=0.03, hspace=0.25
+    )
+    for r, (label, frames) in enumerate(rows):
+        for c in range(columns):
+            axis = axes[r, c]
+            axis.axis("off")
+            if c < len(frames):
+                axis.imshow(frames[c])
+        axes[r, 0].text(0.0, 1.04, label, transform=axes[r, 0].transAxes, fontsize=8, va="bottom", clip_on=False)
+    if title:
+        figure.suptitle(title, fontsize=10)
+    path = Path(path)
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+    return path

@@ -3,6 +3,8 @@
 - the CPU XLA flag MJX needs (deep kinematic chains otherwise compile into exponentially slow code);
 - JAX's persistent compilation cache, so a rerun or a resumed run loads its programs instead of compiling them;
 - line-buffered stdout, so progress lines reach a log file as they are printed;
+- MuJoCo's offscreen rendering through EGL when no display is available (``MUJOCO_GL=egl`` unless set; rendering
+  needs it set before MuJoCo is imported);
 - XLA's C++ log at errors only (``TF_CPP_MIN_LOG_LEVEL=2`` unless set): loading a cached program otherwise prints a
   version-compatibility warning on every run.
 """
@@ -23,6 +25,8 @@ def configure(compile_cache: bool = True) -> None:
     backend: those compile again in each process.
     """
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+    if "mujoco" not in sys.modules and not os.environ.get("DISPLAY"):
+        os.environ.setdefault("MUJOCO_GL", "egl")
     if CPU_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + CPU_XLA_FLAG).strip()
     if compile_cache:

@@ -4,7 +4,23 @@ from talar_jax.runtime import configure
 
 configure()
 
+from pathlib import Path  # noqa: E402
+
 import pytest  # noqa: E402
+
+TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
+QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
+"""A ``--quick`` experiment run with the small BERT folder shipped with the tests (caches build in seconds)."""
+
+
+@pytest.fixture(scope="session")
+def clevr_run(tmp_path_factory):
+    """A finished two-seed ``--quick`` CLEVR TALAR run (shared by the experiment and agent tests): (folder, summary)."""
+    from experiments import clevr
+
+    out = tmp_path_factory.mktemp("clevr")
+    summary = clevr.main([*QUICK, "--out", str(out)])
+    return out, summary
 
 
 def pytest_addoption(parser):

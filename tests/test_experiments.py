@@ -15,9 +15,7 @@ import tyro
 from experiments import clevr, kitchen
 from experiments.compare import CompareArgs, base_config, compare
 from experiments.pipeline import CLI_CONFIG, ExperimentConfig, default_config, resolve
-
-TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
-QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
+from tests.conftest import QUICK, TINY_BERT
 
 
 def _check_run(folder: Path, seeds: int, num_instructions: int, num_goals: int, tl_size: int = 14):
@@ -42,13 +40,6 @@ def _check_run(folder: Path, seeds: int, num_instructions: int, num_goals: int, 
         assert len(per_goal) == num_goals and all(v is None or 0 <= v <= 1 for v in per_goal), split
         assert per_goal == [r for r in rows if "eval/train/success_per_goal" in r][-1][f"eval/{split}/success_per_goal"]
     return summary
-
-
-@pytest.fixture(scope="module")
-def clevr_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("clevr")
-    summary = clevr.main([*QUICK, "--out", str(out)])
-    return out, summary
 
 
 def test_clevr_quick_end_to_end(clevr_run, capsys):

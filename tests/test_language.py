@@ -474,3 +474,27 @@ def test_default_encoder_kitchen_cache_separates_goals(tmp_path):
     nearest = np.argmax(test.sentence_embeddings @ train.sentence_embeddings.T, axis=1)
     assert (train.goal_ids[nearest] == test.goal_ids).mean() >= 0.9
     assert cache.vocab_size == len(set(cache.prefix_next_token.tolist())) > 50
+
+
+def test_a_third_env_registers_how_its_instructions_are_read(tmp_path):
+    from talar_jax.language import InstructionFormat, load_user_instructions, register_instruction_format
+    from talar_jax.language import instructions as instructions_module
+
+    data = tmp_path / "toy.json"
+    data.write_text('{"toy": {"train": ["go left", "go right"], "test": ["head left", "head right"]}}')
+
+    def read(content, path):
+        section = content["toy"]
+        return {split: (section[split], [0, 1]) for split in ("train", "test")}
+
+    register_instruction_format("toy", InstructionFormat(2, read, aliases=("toy-hard",), default_file=data))
+    try:
+        test = load_instructions("toy-hard", "test")
+        assert test.sentences == ("head left", "head right") and test.sentence_ids.tolist() == [2, 3]
+        assert load_instructions("toy", "all").num_goals == 2
+        with pytest.raises(ValueError, match="takes no user instruction files"):
+            load_user_instructions(data, "toy")
+    finally:
+        instructions_module._FORMATS.pop("toy")
+    with pytest.raises(ValueError, match="unknown env 'toy'"):
+        load_instructions("toy", "train")

@@ -8,7 +8,7 @@ import pytest
 from talar_jax.optim import AdamFit, fit_seeds
 from talar_jax.talar import (
     TalarConfig,
-    TaskLanguageData,
+    build_task_language_data,
     make_generate_task_language,
     make_train_task_language,
     make_train_translator,
@@ -20,8 +20,10 @@ from talar_jax.task_language import (
     Receiver,
     TaskLanguageGenerator,
     TaskLanguageSpec,
+    Translator,
     decode_translation,
     gumbel_softmax,
+    receiver_logits_per_prefix,
     translator_loss,
 )
 
@@ -84,15 +86,15 @@ def _toy_data(num_goals=4, per_goal=6, tuples=2048, dim=8, seed=0):
     train_sentences = np.flatnonzero(is_train)
     ids = rng.choice(train_sentences, tuples)
     states = rng.normal(size=(tuples, 6))
-    data = TaskLanguageData(
-        states=jnp.asarray(states, jnp.float32),
-        final_states=jnp.asarray(states + offsets[sentence_goal[ids]], jnp.float32),
-        sentence_ids=jnp.asarray(ids, jnp.int32),
-        sentence_embeddings=jnp.asarray(sentence_embeddings, jnp.float32),
-        prefix_embeddings=jnp.asarray(prefix_table, jnp.float32),
-        prefix_next_token=jnp.asarray(next_token),
-        sentence_prefix_start=jnp.asarray(2 * np.arange(len(sentence_goal)), jnp.int32),
-        sentence_prefix_count=jnp.full(len(sentence_goal), 2, jnp.int32),
+    data = build_task_language_data(
+        states=states,
+        final_states=states + offsets[sentence_goal[ids]],
+        sentence_ids=ids,
+        sentence_embeddings=sentence_embeddings,
+        prefix_embeddings=prefix_table,
+        prefix_next_token=next_token,
+        sentence_prefix_start=2 * np.arange(len(sentence_goal)),
+        sentence_prefix_count=np.full(len(sentence_goal), 2),
     )
     return data, sentence_goal, is_train, num_goals + 1
 
@@ -154,6 +156,34 @@ def test_all_tokens_referential_loss_is_the_mean_over_each_instructions_tokens()
         expected.append(np.mean(per_token))
     assert len(set(counts[np.asarray(data.sentence_ids[rows])])) == 2  # the batch mixes both lengths
     np.testing.assert_allclose(loss, np.mean(expected), rtol=1e-5)
+
+
+def test_per_prefix_receiver_and_per_sentence_translator_equal_the_per_row_networks():
+    """The cheaper layouts the fits use when there are fewer distinct prefixes / sentences than rows."""
+    data, _, _, vocab = _toy_data(tuples=64)
+    assert data.prefix_table.shape[0] == 5  # the empty prefix and one per goal word, deduplicated
+    receiver = Receiver(vocab, (32, 16))
+    message = jnp.asarray(np.random.default_rng(1).integers(0, 2, (7, 14)), jnp.float32)
+    params = receiver.init(jax.random.key(0), message, data.prefix_embeddings[:7])
+    used = np.asarray(data.sentence_prefix_start[data.dataset_sentences])  # first prefix of each used sentence
+    prefix = jnp.asarray(np.random.default_rng(2).choice(np.concatenate([used, used + 1]), (7, 3)))
+    expected = receiver.apply(params, jnp.broadcast_to(message[:, None], (7, 3, 14)), data.prefix_embeddings[prefix])
+    cheap = receiver_logits_per_prefix(params, message, data.prefix_table, data.prefix_table_index[prefix])
+    np.testing.assert_allclose(cheap, expected, rtol=1e-5, atol=1e-5)
+
+    config = TalarConfig(batch_size=128)  # 12 training sentences < 128 tuples: the per-sentence layout
+    assert data.dataset_sentences.shape[0] < config.batch_size
+    fit = make_train_translator(config)
+    targets = jnp.asarray(np.random.default_rng(3).integers(0, 2, (64, config.spec.size)), jnp.float32)
+    translator_params = fit.init_params(jax.random.key(1), targets, data)
+    rng = jax.random.key(4)
+    rows = jax.random.randint(rng, (config.batch_size,), 0, data.states.shape[0])
+    logits = Translator(config.spec, config.translator_hidden).apply(
+        translator_params, data.sentence_embeddings[data.sentence_ids[rows]]
+    )
+    np.testing.assert_allclose(
+        fit.loss(translator_params, rng, targets, data), translator_loss(config.spec, logits, targets[rows]), rtol=1e-5
+    )
 
 
 def test_task_language_quality_on_a_hand_built_table():

@@ -78,6 +78,8 @@ class ClevrEnv(Env):
 
     config_class = ClevrConfig
     xml_path = Path(__file__).parent / "xmls" / "clevr.xml"
+    # straight above the table: x to the right, y up ("to the left of" reads left, "in front of" reads up)
+    render_camera = {"lookat": (0.0, 0.2, -0.3), "distance": 1.75, "azimuth": 90.0, "elevation": -90.0}
 
     def __init__(self, config: ClevrConfig | None = None, physics: str = "mjx"):
         config = config if config is not None else ClevrConfig()
@@ -126,16 +128,29 @@ class ClevrEnv(Env):
         return 2 * tasks.NUM_BALLS
 
     # --- functional API -------------------------------------------------------------------------
-    def reset(self, rng: jax.Array) -> State:
+    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
+        """A fresh scene and a goal: uniform over the goals not already met, or ``goal`` when given (the balls are
+        then re-drawn, up to 16 times, until that goal does not already hold)."""
         rng_balls, rng_goal = jax.random.split(rng)
         ball_xy = tasks.sample_ball_positions(rng_balls)
+        if goal is not None and not self._arrangement:
+            goal = jnp.asarray(goal, jnp.int32)
+
+            def already_met(carry):
+                return tasks.goal_success(carry[1], goal) & (carry[2] < 16)
+
+            def redraw(carry):
+                key, sub = jax.random.split(carry[0])
+                return key, tasks.sample_ball_positions(sub), carry[2] + 1
+
+            _, ball_xy, _ = jax.lax.while_loop(already_met, redraw, (rng_goal, ball_xy, jnp.int32(0)))
         qpos = jnp.zeros(self.mj_model.nq, jnp.float32).at[: self.observation_size].set(ball_xy.reshape(-1))
         data = self.physics.init(qpos)
         if self._arrangement:
             none = jnp.int32(-1)
             task = ClevrTask(none, none, none, none, ball_xy, jnp.float32(0.0))
         else:
-            goal = tasks.sample_goal(rng_goal, ball_xy)
+            goal = tasks.sample_goal(rng_goal, ball_xy) if goal is None else goal
             task = ClevrTask(
                 goal=goal,
                 source=jnp.asarray(tasks.GOAL_SOURCE)[goal],

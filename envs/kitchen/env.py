@@ -114,6 +114,7 @@ class KitchenEnv(Env):
 
     config_class = KitchenConfig
     xml_path = Path(__file__).parent / "xmls" / "kitchen.xml"
+    render_camera = {"lookat": (-0.4, 0.45, 1.95), "distance": 2.3, "azimuth": 112.0, "elevation": -28.0}
 
     def __init__(self, config: KitchenConfig | None = None, physics: str = "mjx"):
         config = config if config is not None else KitchenConfig()
@@ -191,12 +192,18 @@ class KitchenEnv(Env):
         return self.clean_observation(qpos) + self.config.noise_ratio * tasks.NOISE_AMPLITUDE * noise
 
     # --- functional API -------------------------------------------------------------------------
-    def reset(self, rng: jax.Array) -> State:
+    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
+        """The fixed initial state and a sub-task: uniform over the unsatisfied ones, or ``goal`` when given."""
         rng_goal, rng_obs, noise_rng = jax.random.split(_raw_key(rng), 3)
         data = self.physics.init(self._init_qpos)
         obs = self._observe(data.qpos, rng_obs)
         distance = tasks.task_distances(obs)
-        goal = jnp.int32(-1) if self.config.all_tasks else tasks.sample_goal(rng_goal, distance)
+        if self.config.all_tasks:
+            goal = jnp.int32(-1)
+        elif goal is None:
+            goal = tasks.sample_goal(rng_goal, distance)
+        else:
+            goal = jnp.asarray(goal, jnp.int32)
         task = KitchenTask(
             goal=goal,
             completed=jnp.zeros(tasks.NUM_TASKS, jnp.float32),

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 from envs.kitchen import scripted, tasks
 from envs.kitchen.env import KitchenEnv
+from envs.render import RenderError, write_video
 
 
 def scripted_qpos_trajectory(env: KitchenEnv, task: str, seed: int = 0) -> tuple[np.ndarray, int]:
@@ -44,29 +44,6 @@ def scripted_qpos_trajectory(env: KitchenEnv, task: str, seed: int = 0) -> tuple
     return np.concatenate([np.asarray(qpos0)[None], np.asarray(qpos)]), first
 
 
-def render_frames(model: mujoco.MjModel, qpos: np.ndarray, width: int = 320, height: int = 240) -> list[np.ndarray]:
-    """(T, nq) joint positions -> list of (height, width, 3) uint8 frames. Raises if no GL backend works."""
-    data = mujoco.MjData(model)
-    camera = mujoco.MjvCamera()
-    camera.lookat[:] = (-0.4, 0.45, 1.95)
-    camera.distance, camera.azimuth, camera.elevation = 2.3, 112.0, -28.0
-    frames = []
-    with mujoco.Renderer(model, height, width) as renderer:
-        for q in qpos:
-            data.qpos[:] = q
-            mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera)
-            frames.append(renderer.render().copy())
-    return frames
-
-
-def write_gif(frames: list[np.ndarray], path: Path, frame_seconds: float) -> None:
-    from PIL import Image
-
-    images = [Image.fromarray(frame) for frame in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 * frame_seconds), loop=0)
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="microwave", choices=tasks.TASK_NAMES)
@@ -81,12 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     qpos, first = scripted_qpos_trajectory(env, args.task)
     end = first + 2 if first >= 0 else len(qpos)
     try:
-        frames = render_frames(env.mj_model, qpos[: end : args.every], args.width, args.height)
-    except Exception as error:  # no GL context: say how to get one
-        print(f"rendering failed ({error}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa (see module docstring)")
+        frames = env.render(qpos[: end : args.every], args.width, args.height)
+    except RenderError as error:
+        print(f"error: {error}", file=sys.stderr)
         return 2
     frames += [frames[-1]] * 5  # linger on the final frame
-    write_gif(frames, out, frame_seconds=0.08 * args.every)
+    write_video(frames, out, fps=1.0 / (0.08 * args.every))
     print(f"{args.task}: success at step {first}; wrote {len(frames)} frames to {out}")
     return 0
 

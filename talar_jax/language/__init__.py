@@ -1,9 +1,21 @@
 """Language layer: instruction sets, a flax BERT encoder for Hugging Face BERT folders, and the embedding cache."""
 
 from talar_jax.language.bert import BertConfig, BertModel, mean_pool
-from talar_jax.language.cache import SENTENCE_READOUTS, EmbeddingCache, build_cache, default_cache_dir
+from talar_jax.language.cache import (
+    SENTENCE_READOUTS,
+    EmbeddingCache,
+    build_cache,
+    default_cache_dir,
+    sentence_features,
+)
 from talar_jax.language.encoder import BertEncoder, EncoderError, default_encoder_path, load_encoder
-from talar_jax.language.instructions import InstructionSet, load_instructions
+from talar_jax.language.instructions import (
+    InstructionFormat,
+    InstructionSet,
+    load_instructions,
+    load_user_instructions,
+    register_instruction_format,
+)
 
 __all__ = [
     "SENTENCE_READOUTS",
@@ -12,11 +24,15 @@ __all__ = [
     "BertModel",
     "EmbeddingCache",
     "EncoderError",
+    "InstructionFormat",
     "InstructionSet",
     "build_cache",
     "default_cache_dir",
     "default_encoder_path",
     "load_encoder",
     "load_instructions",
+    "load_user_instructions",
     "mean_pool",
+    "register_instruction_format",
+    "sentence_features",
 ]

@@ -23,6 +23,7 @@ import re
 import tempfile
 import warnings
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -164,6 +165,32 @@ class EmbeddingCache:
             goal_sentences=goal_sentences,
             goal_sentence_counts=goal_counts,
         )
+
+
+def sentence_features(
+    encoder: BertEncoder, sentences: Sequence[str], readout: str = "sentence", batch_size: int = 256
+) -> np.ndarray:
+    """(S, F) features of any sentences, computed as ``EmbeddingCache.sentence_features(readout)`` computes them for
+    the cached ones (the pooled embedding; with ``"sentence+prefixes"`` also the mean of the prefix embeddings).
+
+    Raises:
+        ValueError: an unknown readout, or a sentence without tokens (empty or only characters the encoder drops).
+    """
+    if readout not in SENTENCE_READOUTS:
+        raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
+    pieces = encoder.tokenize(list(sentences))
+    for sentence, tokens in zip(sentences, pieces, strict=True):
+        if not tokens:
+            raise ValueError(f"sentence {sentence!r} has no words the encoder {encoder.name} can read")
+    full = [encoder.with_specials(tokens) for tokens in pieces]
+    if readout == "sentence":
+        return encoder.embed_sequences(full, batch_size=batch_size)
+    prefixes = [encoder.with_specials(tokens[:i]) for tokens in pieces for i in range(len(tokens))]
+    embeddings = encoder.embed_sequences(full + prefixes, batch_size=batch_size)
+    counts = np.array([len(tokens) for tokens in pieces])
+    starts = len(full) + np.cumsum(counts) - counts
+    means = np.stack([embeddings[start : start + count].mean(0) for start, count in zip(starts, counts)])
+    return np.concatenate([embeddings[: len(full)], means], axis=1).astype(np.float32)
 
 
 def default_cache_dir() -> Path:

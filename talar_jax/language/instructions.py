@@ -13,6 +13,7 @@ import dataclasses
 import json
 import os
 import string
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +24,44 @@ from envs.kitchen import tasks as kitchen_tasks
 INSTRUCTIONS_FILE = Path(__file__).parent / "data" / "instructions.json"
 """Package copy of the instruction data (paper Appendix D.1)."""
 
-ENVS: tuple[str, ...] = ("clevr", "kitchen")
 SPLITS: tuple[str, ...] = ("train", "test", "all")
-_ENV_ALIASES = {"clevr": "clevr", "clevr-arrangement": "clevr", "kitchen": "kitchen", "kitchen-all": "kitchen"}
 _CLEVR_FIELDS = {"subject", "relation", "object"}
+
+SentencesByGoal = tuple[list[str], list[int]]
+
+
+@dataclasses.dataclass(frozen=True)
+class InstructionFormat:
+    """How one env's instructions are read: what a new env registers (``register_instruction_format``).
+
+    Attributes:
+        num_goals: the env's number of goal ids.
+        read: ``(json data, path) -> {"train": (sentences, goal ids), "test": ...}`` from the instruction file.
+        read_user: ``(json data, path) -> (sentences, goal ids)`` of a user's own phrasings
+            (``load_user_instructions``), or None when the env takes none.
+        aliases: other env names (variants) that share these instructions.
+        default_file: the instruction file of this env (None: the package's ``INSTRUCTIONS_FILE``).
+    """
+
+    num_goals: int
+    read: Callable[[dict, Path], dict[str, SentencesByGoal]]
+    read_user: Callable[[dict, Path], SentencesByGoal] | None = None
+    aliases: tuple[str, ...] = ()
+    default_file: Path | None = None
+
+
+_FORMATS: dict[str, InstructionFormat] = {}
+
+
+def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:
+    """Makes ``load_instructions(env, ...)`` (and the language cache) read ``env``'s instructions this way."""
+    _FORMATS[env] = instruction_format
+
+
+def _aliases() -> dict[str, str]:
+    names = {env: env for env in _FORMATS}
+    names.update({alias: env for env, fmt in _FORMATS.items() for alias in fmt.aliases})
+    return names
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -93,10 +128,11 @@ def goal_lookup(goal_ids: np.ndarray, num_goals: int) -> tuple[np.ndarray, np.nd
 
 
 def canonical_env(env: str) -> str:
-    """Maps an env or registered variant name to "clevr" or "kitchen", with one clear error."""
-    if env not in _ENV_ALIASES:
-        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(_ENV_ALIASES))}")
-    return _ENV_ALIASES[env]
+    """Maps an env or registered variant name to the env whose instructions it uses, with one clear error."""
+    aliases = _aliases()
+    if env not in aliases:
+        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(aliases))}")
+    return aliases[env]
 
 
 def _read_json(path: Path) -> dict:
@@ -153,12 +189,7 @@ def _clevr_patterns(data: dict, path: Path) -> dict[str, list[str]]:
     for split in ("train", "test"):
         listed = _string_list(section.get(f"{split}_patterns"), f"clevr.{split}_patterns", path)
         for pattern in listed:
-            fields = {name for _, name, _, _ in string.Formatter().parse(pattern) if name is not None}
-            if fields != _CLEVR_FIELDS:
-                raise ValueError(
-                    f"instruction file {path}: clevr pattern {pattern!r} must use exactly the placeholders "
-                    "{subject}, {relation}, {object}"
-                )
+            _check_clevr_pattern(pattern, path)
         patterns[split] = listed
     return patterns
 
@@ -212,15 +243,10 @@ def load_instructions(
     env = canonical_env(env)
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
-    path = Path(instructions_file) if instructions_file is not None else INSTRUCTIONS_FILE
-    data = _read_json(path)
-    if env == "kitchen":
-        by_split = _kitchen_sentences(data, path)
-        num_goals = kitchen_tasks.NUM_TASKS
-    else:
-        patterns = _clevr_patterns(data, path)
-        by_split = {name: _clevr_sentences(listed) for name, listed in patterns.items()}
-        num_goals = clevr_tasks.NUM_GOALS
+    fmt = _FORMATS[env]
+    path = Path(instructions_file) if instructions_file is not None else fmt.default_file or INSTRUCTIONS_FILE
+    by_split = fmt.read(_read_json(path), path)
+    num_goals = fmt.num_goals
     (train, train_goals), (test, test_goals) = by_split["train"], by_split["test"]
     _check_no_leak(train, test, env, path)
 
@@ -252,3 +278,81 @@ def load_instructions(
         goal_sentences=goal_sentences,
         goal_sentence_counts=counts,
     )
+
+
+def load_user_instructions(path: str | os.PathLike, env: str) -> tuple[list[str], np.ndarray]:
+    """A user's own phrasings of one env's goals: ``(sentences, goal ids)``.
+
+    The file is a JSON object with ``"kitchen": {"<sub-task>": ["sentence", ...], ...}`` (any subset of the six
+    sub-tasks) and/or ``"clevr_patterns": ["... {subject} ... {relation} ... {object} ...", ...]`` (each pattern
+    filled for all 80 goals as the project fills its own). Other keys are ignored.
+
+    Raises:
+        ValueError: one line naming the problem (no entry for ``env``, an unknown sub-task, a pattern without its
+            placeholders, an empty list or sentence).
+    """
+    env = canonical_env(env)
+    path = Path(path)
+    data = _read_json(path)
+    read_user = _FORMATS[env].read_user
+    if read_user is None:
+        raise ValueError(f"env {env!r} takes no user instruction files")
+    sentences, goals = read_user(data, path)
+    return sentences, np.array(goals, np.int32)
+
+
+def _kitchen_user_sentences(data: dict, path: Path) -> SentencesByGoal:
+    section = data.get("kitchen")
+    if section is None:
+        raise ValueError(f"instruction file {path} has no 'kitchen' entry (keys: {', '.join(data) or 'none'})")
+    if not isinstance(section, dict) or not section:
+        raise ValueError(f"instruction file {path}: 'kitchen' must map sub-task names to lists of sentences")
+    sentences, goals = [], []
+    for name, listed in section.items():
+        if name not in kitchen_tasks.TASK_NAMES:
+            raise ValueError(
+                f"instruction file {path}: unknown kitchen sub-task {name!r}; valid: "
+                f"{', '.join(kitchen_tasks.TASK_NAMES)}"
+            )
+        listed = _string_list(listed, f"kitchen[{name!r}]", path)
+        sentences += listed
+        goals += [kitchen_tasks.TASK_NAMES.index(name)] * len(listed)
+    return sentences, goals
+
+
+def _check_clevr_pattern(pattern: str, path: Path) -> None:
+    try:
+        fields = {name for _, name, _, _ in string.Formatter().parse(pattern) if name is not None}
+    except ValueError as error:
+        raise ValueError(f"instruction file {path}: clevr pattern {pattern!r} is malformed ({error})") from None
+    if fields != _CLEVR_FIELDS:
+        raise ValueError(
+            f"instruction file {path}: clevr pattern {pattern!r} must use exactly the placeholders "
+            "{subject}, {relation}, {object}"
+        )
+
+
+def _clevr_user_sentences(data: dict, path: Path) -> SentencesByGoal:
+    patterns = data.get("clevr_patterns")
+    if patterns is None:
+        raise ValueError(f"instruction file {path} has no 'clevr_patterns' entry (keys: {', '.join(data) or 'none'})")
+    patterns = _string_list(patterns, "clevr_patterns", path)
+    for pattern in patterns:
+        _check_clevr_pattern(pattern, path)
+    return _clevr_sentences(patterns)
+
+
+def _clevr_split_sentences(data: dict, path: Path) -> dict[str, SentencesByGoal]:
+    return {name: _clevr_sentences(listed) for name, listed in _clevr_patterns(data, path).items()}
+
+
+register_instruction_format(
+    "kitchen",
+    InstructionFormat(kitchen_tasks.NUM_TASKS, _kitchen_sentences, _kitchen_user_sentences, aliases=("kitchen-all",)),
+)
+register_instruction_format(
+    "clevr",
+    InstructionFormat(
+        clevr_tasks.NUM_GOALS, _clevr_split_sentences, _clevr_user_sentences, aliases=("clevr-arrangement",)
+    ),
+)

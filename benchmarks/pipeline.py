@@ -1,0 +1,154 @@
+"""Wall-clock of TALAR's whole pipeline per stage and env, compile apart, beside the bare physics of its env steps.
+
+``python -m benchmarks.pipeline [--envs clevr kitchen] [--seeds 5] [--ifp-chunks 4] [--out DIR]``
+
+Runs ``experiments.pipeline.run`` on each env's default configuration in a fresh folder: the oracle stage (task
+dataset), the referential game and the translator at their full default budgets, and the first ``--ifp-chunks``
+chunks of the instruction-following policy. The IFP's full-budget time is extrapolated from those chunks (their
+evaluations included, compilation apart). Beside it: the bare physics of the same env steps, i.e. the batched C
+backend stepping ``num_envs x seeds`` envs with random actions and no policy (``benchmarks.env_sps``' method).
+The ratio (RG + translator + IFP) / bare physics is what the pipeline costs on top of simulating its experience;
+the project's goal is 1.15. Prints a table and writes ``benchmarks/results/pipeline.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from talar_jax.runtime import configure
+
+configure()
+
+import jax  # noqa: E402
+
+import envs  # noqa: E402
+from benchmarks.env_sps import random_actions  # noqa: E402
+from experiments.pipeline import default_config, run  # noqa: E402
+from talar_jax.ppo import derive  # noqa: E402
+
+RESULTS_DIR = Path(__file__).parent / "results"
+
+
+def bare_physics_sps(env_name: str, env_options: dict, batch: int, chunk_steps: int, min_seconds: float) -> dict:
+    """Env steps/s of the batched C backend (time limit and auto-reset included) with random actions, no policy."""
+    env = envs.wrap_for_training(envs.make(env_name, physics="c", **env_options))
+
+    def chunk(state, key):
+        actions = random_actions(env.action_spec, key, (chunk_steps, batch))
+        return jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), state, actions)[0]
+
+    key = jax.random.key(0)
+    start = time.perf_counter()
+    state = jax.jit(lambda k: jax.vmap(env.reset)(jax.random.split(k, batch)))(key)
+    chunk_jit = jax.jit(chunk).lower(state, key).compile()
+    compile_s = time.perf_counter() - start
+    state = jax.block_until_ready(chunk_jit(state, jax.random.key(1)))  # warm-up
+    calls, start = 0, time.perf_counter()
+    while calls == 0 or time.perf_counter() - start < min_seconds:
+        state = jax.block_until_ready(chunk_jit(state, jax.random.key(2 + calls)))
+        calls += 1
+    seconds = time.perf_counter() - start
+    return {"sps": calls * chunk_steps * batch / seconds, "compile_s": compile_s, "batch": batch}
+
+
+def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
+    """Runs the pipeline's stages for one env and returns the per-stage timings and the bare-physics comparison."""
+    base = default_config(env_name, seeds=seeds)
+    sizes = derive(base.ifp)
+    full_steps = base.ifp.total_env_steps
+    ran_steps = ifp_chunks * sizes.env_steps_per_chunk
+    config = dataclasses.replace(base, out=out / env_name, ifp=dataclasses.replace(base.ifp, total_env_steps=ran_steps))
+    start = time.perf_counter()
+    summary = run(config)
+    total_s = time.perf_counter() - start
+    stage_seconds = summary["stage_seconds"]
+    stages = {}
+    for name, seconds in stage_seconds.items():
+        folder = config.out / ("talar/ifp" if name == "ifp" else name)
+        record = json.loads((folder / "stage.json").read_text())["summary"]
+        stages[name] = {"seconds": seconds, "compile_s": record.get("compile_s")}
+    metrics = [json.loads(line) for line in (config.out / "talar/ifp/ppo/metrics.jsonl").read_text().splitlines()]
+    ifp_compile = next((row["train/compile_s"] for row in metrics if "train/compile_s" in row), 0.0)
+    stages["ifp"]["compile_s"] = ifp_compile
+    ifp_full_s = (stages["ifp"]["seconds"] - ifp_compile) * full_steps / ran_steps
+    physics = bare_physics_sps(
+        env_name, config.env_options, base.ifp.num_envs * seeds, base.ifp.rollout_length, min_seconds=5.0
+    )
+    physics_full_s = full_steps * seeds / physics["sps"]
+    supervised_s = sum(
+        stages[name]["seconds"] - (stages[name]["compile_s"] or 0.0)
+        for name in ("talar/task_language", "talar/translator")
+    )
+    pipeline_full_s = supervised_s + ifp_full_s
+    return {
+        "env": env_name,
+        "seeds": seeds,
+        "ifp_env_steps_per_seed_full": full_steps,
+        "ifp_env_steps_per_seed_timed": ran_steps,
+        "stages": stages,
+        "supervised_s": supervised_s,
+        "ifp_full_s_estimate": ifp_full_s,
+        "pipeline_full_s_estimate": pipeline_full_s,
+        "bare_physics": physics,
+        "bare_physics_full_s": physics_full_s,
+        "ratio_to_bare_physics": pipeline_full_s / physics_full_s,
+        "benchmark_wall_s": total_s,
+    }
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "| env | stage | seconds | of which compile |",
+        "|---|---|---:|---:|",
+    ]
+    for row in rows:
+        for name, stage in row["stages"].items():
+            compile_s = "-" if stage["compile_s"] is None else f"{stage['compile_s']:.0f}"
+            timed = f" ({row['ifp_env_steps_per_seed_timed']:,} steps/seed timed)" if name == "ifp" else ""
+            lines.append(f"| {row['env']} | {name}{timed} | {stage['seconds']:.0f} | {compile_s} |")
+    lines += [
+        "",
+        "| env | seeds | RG + translator s (no compile) | IFP s at full budget (est.) | whole pipeline s | "
+        "bare C physics s, same env steps | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['env']} | {row['seeds']} | {row['supervised_s']:.0f} | {row['ifp_full_s_estimate']:.0f} | "
+            f"{row['pipeline_full_s_estimate']:.0f} | {row['bare_physics_full_s']:.0f} | "
+            f"{row['ratio_to_bare_physics']:.2f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--ifp-chunks", type=int, default=4, help="IFP chunks timed (the rest is extrapolated)")
+    parser.add_argument("--out", type=Path, default=None, help="run folder (default: a fresh temporary one)")
+    args = parser.parse_args()
+    if args.seeds < 1 or args.ifp_chunks < 1:
+        parser.error("--seeds and --ifp-chunks must be >= 1")
+    out = args.out or Path(tempfile.mkdtemp(prefix="talar-pipeline-bench-"))
+    rows = []
+    for env_name in args.envs:
+        rows.append(measure(env_name, args.seeds, args.ifp_chunks, out))
+        table = markdown(rows)
+        machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+        RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+        (RESULTS_DIR / "pipeline.json").write_text(
+            json.dumps({"machine": machine, "args": {**vars(args), "out": str(out)}, "rows": rows}, indent=2)
+        )
+        (RESULTS_DIR / "pipeline.md").write_text(table)
+    print(table)
+
+
+if __name__ == "__main__":
+    main()

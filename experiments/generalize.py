@@ -1,0 +1,125 @@
+"""Your own phrasings, evaluated like a run's own evaluation: TL agreement and success per seed.
+
+``python -m experiments.generalize RUN_DIR --instructions FILE.json [--episodes N] [--json OUT]``
+
+FILE holds ``{"kitchen": {"<sub-task>": ["sentence", ...]}}`` and/or ``{"clevr_patterns": ["... {subject} ...
+{relation} ... {object} ..."]}`` (patterns filled for all 80 goals as the project fills its own); the run reads
+its own env's entry. For every seed of the run, and for the run's training and test instructions beside yours,
+it prints TL agreement (the fraction of sentences whose code equals their goal's training code) and success on
+``--episodes`` episodes (a goal uniform over the set's goals, one of its sentences uniform); the three sets share the
+episodes' goals and random keys, so their success rates are paired.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import tyro
+
+from talar_jax.agent import Agent, AgentError, find_method_folder
+from talar_jax.language import load_instructions, load_user_instructions
+
+
+@dataclasses.dataclass(frozen=True)
+class GeneralizeArgs:
+    run_dir: tyro.conf.Positional[Path]
+    """A finished run folder (``runs/clevr`` or a method folder such as ``runs/clevr/talar``)."""
+    instructions: Path
+    """JSON file of your phrasings (format above)."""
+    episodes: int = 200
+    """Episodes per seed and instruction set."""
+    json: Path | None = None
+    """Also write the results here."""
+    rng_seed: int = 0
+    """Seed of the episodes' randomness."""
+
+
+def instruction_sets(agent: Agent, instructions: Path) -> dict[str, tuple[np.ndarray, np.ndarray, list[str]]]:
+    """name -> (features (S, F), goal ids (S,), sentences) of the run's train and test sets and the user's."""
+    cache, readout = agent.cache, agent.readout
+    features = cache.sentence_features(readout)
+    sets = {}
+    for split in ("train", "test"):
+        patterns = agent.config.get("num_patterns") if split == "train" else None
+        rows = load_instructions(agent.env_name, split, patterns).sentence_ids
+        sets[split] = (features[rows], cache.goal_ids[rows], [cache.sentences[r] for r in rows])
+    sentences, goals = load_user_instructions(instructions, agent.env_name)
+    sets["yours"] = (agent.encode(sentences), goals, sentences)
+    return sets
+
+
+def evaluate_seed(agent: Agent, sets: dict, episodes: int, rng_seed: int) -> dict[str, dict[str, float]]:
+    """TL agreement and paired-episode success of every instruction set for one seed: every set plays the same
+    goals with the same episode keys (the goals the user's sentences cover)."""
+    choice = np.random.default_rng(rng_seed)
+    goal_pool = np.array(sorted(set(sets["yours"][1].tolist())))
+    goals = goal_pool[choice.integers(0, len(goal_pool), episodes)]
+    rng_episodes = jax.random.key(rng_seed)
+    out = {}
+    for name, (features, sentence_goals, _) in sets.items():
+        codes = agent.translate_features(features)
+        agree = [np.array_equal(code.round(3), agent.goal_code(goal)) for code, goal in zip(codes, sentence_goals)]
+        rows = np.array([choice.choice(np.flatnonzero(sentence_goals == goal)) for goal in goals])
+        success = agent.success_rate(codes[rows], goals, rng_episodes)
+        out[name] = {"tl_agreement": float(np.mean(agree)), "success": float(np.mean(success)), "sentences": len(codes)}
+    return out
+
+
+def report(per_seed: list[dict[str, dict[str, float]]]) -> str:
+    names = list(per_seed[0])
+    lines = ["| seed | " + " | ".join(f"{n}: TL agreement | {n}: success" for n in names) + " |"]
+    lines.append("|---|" + "---:|---:|" * len(names))
+    for seed, row in enumerate(per_seed):
+        cells = [f"{100 * row[n]['tl_agreement']:.1f} | {100 * row[n]['success']:.1f}" for n in names]
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    cells = []
+    for n in names:
+        for metric in ("tl_agreement", "success"):
+            values = 100 * np.array([row[n][metric] for row in per_seed])
+            cells.append(f"{values.mean():.1f} ± {values.std():.1f}")
+    lines.append("| mean ± std | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def generalize(args: GeneralizeArgs) -> dict:
+    if args.episodes < 1:
+        raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
+    folder = find_method_folder(args.run_dir)
+    seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
+    per_seed, sizes = [], {}
+    for seed in range(seeds):
+        agent = Agent(folder, seed=seed)
+        if seed == 0:
+            try:
+                sets = instruction_sets(agent, args.instructions)
+            except (ValueError, FileNotFoundError) as error:
+                raise AgentError(str(error)) from None
+            sizes = {name: len(s[2]) for name, s in sets.items()}
+            print(f"run: {folder} ({agent.method}, {agent.env_name}, {seeds} seeds); sentences: {sizes}")
+        per_seed.append(evaluate_seed(agent, sets, args.episodes, args.rng_seed))
+        print(f"seed {seed}: " + json.dumps(per_seed[-1]), flush=True)
+    table = report(per_seed)
+    print(table)
+    result = {"run": str(folder), "episodes_per_seed": args.episodes, "sentences": sizes, "per_seed": per_seed}
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+    return result
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = tyro.cli(GeneralizeArgs, args=argv, description=__doc__)
+    try:
+        return generalize(args)
+    except AgentError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

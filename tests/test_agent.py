@@ -1,0 +1,124 @@
+"""A trained run as an agent: load, encode (= the cache), translate a new sentence, act, and the two commands."""
+
+import json
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from experiments import generalize, instruct
+from talar_jax.agent import Agent, AgentError, load
+from talar_jax.language import load_user_instructions
+
+
+@pytest.fixture(scope="module")
+def agent(clevr_run):
+    out, _ = clevr_run
+    return load(out, seed=1)
+
+
+def test_agent_reads_sentences_as_the_run_did_and_acts(agent, clevr_run):
+    out, _ = clevr_run
+    assert agent.method == "talar" and agent.folder == out / "talar" and agent.seed == 1
+    # The features of cached sentences are the cache's (train and test rows), and so are their codes.
+    rows = [0, 5, 719, 720, 1439]
+    sentences = [agent.cache.sentences[r] for r in rows]
+    np.testing.assert_allclose(
+        agent.encode(sentences), agent.cache.sentence_features(agent.readout)[rows], atol=1e-5, rtol=1e-5
+    )
+    tables = np.load(out / "talar" / "translator" / "tables.npy")
+    np.testing.assert_array_equal(agent.translate(sentences), tables[1, rows])
+    # A sentence no one trained on: a valid TL (4 predicate bits, two one-hot arguments).
+    code = agent.translate("Could you please push the red ball so it ends up left of the blue one?")
+    assert code.shape == (1, 14) and set(np.unique(code)) <= {0.0, 1.0}
+    np.testing.assert_array_equal(code[0, 4:].reshape(2, 5).sum(-1), 1)
+    # A code decodes to the goal most training instructions with that code have (here from the saved table).
+    train = np.flatnonzero(agent.cache.is_train)
+    same = train[np.all(tables[1, train] == tables[1, 0], axis=1)]
+    counts = np.bincount(agent.cache.goal_ids[same], minlength=agent.cache.num_goals)
+    assert counts[agent.nearest_goal(tables[1, 0])] == counts.max()
+    assert agent.nearest_goal(1.0 - tables[1, 0]) in (None, *range(agent.cache.num_goals))
+    goal = int(agent.cache.goal_ids[0])
+    action = agent.act(np.zeros(agent.env.observation_size), code[0], jax.random.key(0), deterministic=True)
+    assert action.shape == () and 0 <= int(action) < agent.env.action_spec.size
+    episode = agent.rollout(sentences[0], jax.random.key(1), goal=goal)
+    length = agent.env.episode_length
+    assert episode.observations.shape == (length, agent.env.observation_size)
+    assert episode.qpos.shape == (length + 1, agent.env.mj_model.nq)
+    assert 1 <= episode.length <= length and episode.goal == goal
+    assert episode.valid[: episode.length].all() and not episode.valid[episode.length :].any()
+
+
+def test_instruct_prints_the_code_and_success_and_writes_a_video(clevr_run, tmp_path, capsys):
+    out, _ = clevr_run
+    video = tmp_path / "episode.gif"
+    result = instruct.main(
+        [str(out), "move the red ball left of the blue ball", "--episodes", "4", "--goal", "3", "--video", str(video)]
+    )
+    printed = capsys.readouterr().out
+    assert "code:" in printed and "given with --goal" in printed
+    assert result["goal"] == 3 and 0.0 <= result["success"] <= 1.0
+    if "video: not written" in printed:
+        pytest.skip("no OpenGL backend on this machine: the evaluation ran, the video was skipped")
+    assert video.stat().st_size > 0 and result["video"] == str(video)
+
+
+def test_generalize_on_the_test_patterns_reproduces_the_tables_agreement(clevr_run, tmp_path, capsys):
+    out, _ = clevr_run
+    mine = tmp_path / "mine.json"
+    mine.write_text(
+        json.dumps(
+            {
+                "clevr_patterns": ["Get the {subject} ball {relation} the {object} ball please"],
+                "kitchen": {"kettle": ["move the kettle"]},
+            }
+        )
+    )
+    result = generalize.main(
+        [str(out), "--instructions", str(mine), "--episodes", "8", "--json", str(tmp_path / "r.json")]
+    )
+    assert json.loads((tmp_path / "r.json").read_text())["sentences"] == {"train": 720, "test": 720, "yours": 80}
+    tables = np.load(out / "talar" / "translator" / "tables.npy")
+    for seed, row in enumerate(result["per_seed"]):
+        agent = Agent(out, seed=seed)
+        test = np.flatnonzero(~agent.cache.is_train)
+        expected = np.mean([np.array_equal(tables[seed, r], agent.goal_code(agent.cache.goal_ids[r])) for r in test])
+        assert row["test"]["tl_agreement"] == pytest.approx(expected)
+        assert all(0.0 <= row[name]["success"] <= 1.0 for name in ("train", "test", "yours"))
+    assert "mean ± std" in capsys.readouterr().out
+
+
+def _error(capsys, main, argv) -> str:
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
+    out, _ = clevr_run
+    assert "is empty" in _error(capsys, instruct.main, [str(out), "   "])
+    assert "does not exist" in _error(capsys, instruct.main, [str(tmp_path / "nowhere"), "go"])
+    assert ".gif or .mp4" in _error(capsys, instruct.main, [str(out), "go", "--video", str(tmp_path / "v.avi")])
+    unfinished = tmp_path / "unfinished"
+    (unfinished / "talar" / "ifp").mkdir(parents=True)
+    shutil.copy(out / "talar" / "config.json", unfinished / "talar" / "config.json")
+    assert "not finished" in _error(capsys, instruct.main, [str(unfinished), "go"])
+    onehot = tmp_path / "onehot" / "onehot"
+    (onehot / "ifp").mkdir(parents=True)
+    (onehot / "ifp" / "stage.json").write_text("{}")
+    config = json.loads((out / "talar" / "config.json").read_text())
+    (onehot / "config.json").write_text(json.dumps({**config, "method": "onehot"}))
+    with pytest.raises(AgentError, match="One-hot"):
+        Agent(onehot)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"clevr_patterns": ["move the {subject} ball"], "kitchen": {"fridge": ["open it"]}}))
+    assert "placeholders" in _error(capsys, generalize.main, [str(out), "--instructions", str(bad)])
+    with pytest.raises(ValueError, match="unknown kitchen sub-task 'fridge'"):
+        load_user_instructions(bad, "kitchen")
+    only_kitchen = tmp_path / "kitchen.json"
+    only_kitchen.write_text(json.dumps({"kitchen": {"kettle": ["move the kettle"]}}))
+    assert "no 'clevr_patterns'" in _error(capsys, generalize.main, [str(out), "--instructions", str(only_kitchen)])
