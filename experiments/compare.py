@@ -16,8 +16,16 @@ import numpy as np
 import tyro
 
 from experiments.methods import METHOD_LABELS, METHODS
-from experiments.pipeline import CLI_CONFIG, ExperimentConfig, check_inputs, learning_curve, run, run_name
-from experiments.recipes import EXPERIMENT_TALAR
+from experiments.pipeline import (
+    CLI_CONFIG,
+    ExperimentConfig,
+    check_inputs,
+    default_config,
+    learning_curve,
+    run,
+    run_name,
+)
+from experiments.recipes import EXPERIMENT_TALAR, recipe_names
 from talar_jax.report import plot_learning_curves, results_table
 from talar_jax.stages import StageResult
 
@@ -27,8 +35,9 @@ class CompareArgs:
     """Which methods to compare, on the experiment settings every method shares."""
 
     experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(talar=EXPERIMENT_TALAR)
-    """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; ``--out``
-    defaults to runs/compare-<env>; ``--method`` is set per method)."""
+    """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
+    env's recipe, as ``default_config(env)``; ``--out`` defaults to runs/compare-<env>; ``--method`` is set per
+    method)."""
     methods: tuple[str, ...] = tuple(METHODS)
     """Methods to run (TALAR first is conventional)."""
     ifp_env_steps: int | None = None
@@ -51,9 +60,32 @@ def base_config(args: CompareArgs) -> ExperimentConfig:
     return config
 
 
+def env_option(argv: list[str] | None, default: str = "clevr") -> str:
+    """The value of ``--env`` on a command line (``default`` when absent), read before the full parse so that the
+    env's recipe gives the defaults of every other option."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for index, item in enumerate(argv):
+        if item == "--env" and index + 1 < len(argv):
+            return argv[index + 1]
+        if item.startswith("--env="):
+            return item.split("=", 1)[1]
+    return default
+
+
+def parse_args(cls, argv: list[str] | None, description: str | None = None):
+    """``cls`` from the command line; a comparison's experiment defaults to the recipe of its ``--env``
+    (``default_config(env)``), so ``compare --env kitchen`` runs the kitchen command's settings."""
+    default = None
+    if cls is CompareArgs:
+        env = env_option(argv)
+        if env in recipe_names():
+            default = CompareArgs(experiment=dataclasses.replace(default_config(env), out=None))
+    return tyro.cli(cls, args=argv, default=default, description=description, config=CLI_CONFIG)
+
+
 def main_with(cls, function, argv: list[str] | None, description: str | None):
     """Parses ``cls`` from the command line and calls ``function``; bad options: one ``error:`` line, status 2."""
-    args = tyro.cli(cls, args=argv, description=description, config=CLI_CONFIG)
+    args = parse_args(cls, argv, description)
     try:
         if isinstance(args, CompareArgs):
             base_config(args)

@@ -160,6 +160,12 @@ def _kitchen_collector():
 
 
 KITCHEN_IFP = dataclasses.replace(EXPERIMENT_IFP, total_env_steps=4_000_000)
+# The kitchen's six sub-tasks need a quarter of the referential game and a fifth of the translator steps, measured
+# with `python scripts/supervised_budget.py runs/kitchen-4M/oracle/dataset --env kitchen --seeds 5 --rg-milestones
+# 2000 5000 --translator-steps 500 2000 10000` (results/supervised-budget/): at 5k RG steps every seed's translated TL
+# gives the six sub-tasks six distinct codes (distinct_goal_codes 1.0, decodable 1.0 train / 0.997 test; translator
+# 2k steps = 10k steps); at 2k RG steps 0.867; the 20k-step run of results/kitchen-talar-5seeds-4M (other seeds): 0.933.
+KITCHEN_TALAR = dataclasses.replace(EXPERIMENT_TALAR, rg_steps=5_000, translator_steps=2_000)
 # The posture term's targets: the scripted controller's postures at success instead of TALAR's hard-coded ones
 # (README, "Kitchen reward"; the measurements are in the KitchenConfig docstring and results/).
 KITCHEN_ENV_OPTIONS = {"posture_targets": "scripted"}
@@ -172,7 +178,7 @@ register_recipe(
         oracle_env_steps=10_000_000,
         oracle_target_success=0.7,
         num_tuples=50_000,
-        talar=EXPERIMENT_TALAR,
+        talar=KITCHEN_TALAR,
         ifp=KITCHEN_IFP,
         env_options=KITCHEN_ENV_OPTIONS,
     )

@@ -91,9 +91,9 @@ def find_method_folder(run_dir: str | Path) -> Path:
 def _latest_policy_params(ppo_dir: Path) -> dict[str, Any]:
     import orbax.checkpoint as ocp
 
-    manager = ocp.CheckpointManager(
-        (ppo_dir / "checkpoints").absolute(), options=ocp.CheckpointManagerOptions(read_only=True)
-    )
+    if not (ppo_dir / "checkpoints").is_dir():
+        raise AgentError(f"{ppo_dir} has no policy checkpoints")
+    manager = ocp.CheckpointManager((ppo_dir / "checkpoints").absolute())
     step = manager.latest_step()
     if step is None:
         raise AgentError(f"{ppo_dir} has no policy checkpoint")

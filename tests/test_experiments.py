@@ -13,7 +13,7 @@ import pytest
 import tyro
 
 from experiments import clevr, kitchen
-from experiments.compare import CompareArgs, base_config, compare
+from experiments.compare import CompareArgs, base_config, compare, parse_args
 from experiments.pipeline import CLI_CONFIG, ExperimentConfig, default_config, resolve
 from tests.conftest import QUICK, TINY_BERT
 
@@ -116,6 +116,13 @@ def test_compare_nests_the_env_commands_config(tmp_path):
     assert base_config(CompareArgs(experiment=readout)).sentence_readout == "sentence"
     kitchen_base = base_config(CompareArgs(experiment=ExperimentConfig(env="kitchen", out=tmp_path)))
     assert kitchen_base.ifp == resolve(kitchen.DEFAULT).ifp and kitchen_base.env_options == kitchen.DEFAULT.env_options
+    # On the command line the experiment's defaults are the --env's recipe (the kitchen's shorter referential game).
+    for argv in (["--env", "kitchen"], ["--env=kitchen", "--seeds", "2"]):
+        parsed_kitchen = base_config(parse_args(CompareArgs, argv))
+        assert parsed_kitchen.talar == resolve(kitchen.DEFAULT).talar and parsed_kitchen.out == Path(
+            "runs/compare-kitchen"
+        )
+    assert base_config(parse_args(CompareArgs, [])).talar == resolve(clevr.DEFAULT).talar
 
 
 def test_python_api_and_command_line_make_the_same_run():
