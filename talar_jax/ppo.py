@@ -508,7 +508,9 @@ def run_ppo(
             row["train/compile_s"] = compile_s
         last = chunk_index == sizes.num_chunks - 1
         if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
+            eval_start = time.perf_counter()
             final_eval = evaluate(state.params, chunk_index)
+            row["eval/seconds"] = time.perf_counter() - eval_start  # the first one includes its compilation
             for split, summary in final_eval.items():
                 row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
             success = final_eval.get("train", next(iter(final_eval.values())))["success"]

@@ -1,0 +1,95 @@
+"""Referential-game and translator step time: the per-distinct-prefix / per-distinct-sentence layouts against per-row.
+
+``python -m benchmarks.supervised_layouts --env kitchen --dataset runs/kitchen/oracle/dataset``
+
+Times ``--steps`` jitted steps (5 seeds vmapped, compile apart) of the env recipe's referential game and translator
+on a task dataset, in the layout the fits choose (the receiver's first layer once per distinct prefix and the
+translator once per distinct sentence, when those are fewer than the rows of a step) and in the per-row layout,
+side by side in one process. Prints a table and writes ``benchmarks/results/supervised_layouts_<env>.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+from talar_jax.runtime import configure
+
+configure()
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from experiments.recipes import get_recipe  # noqa: E402
+from talar_jax.dataset import TaskDataset  # noqa: E402
+from talar_jax.language import build_cache  # noqa: E402
+from talar_jax.talar import make_task_language_data, make_train_task_language, make_train_translator  # noqa: E402
+
+RESULTS_DIR = Path(__file__).parent / "results"
+
+
+def time_fit(fit, data, extra: tuple, seeds: int, steps: int) -> float:
+    """Seconds per step of ``fit`` (vmapped over seeds), compile and a warm-up call apart."""
+    keys = jax.random.split(jax.random.key(0), seeds)
+    in_axes = (0,) + (0,) * len(extra) + (None,)
+    state = jax.jit(jax.vmap(fit.init, in_axes=in_axes))(keys, *extra, data)
+    run = jax.jit(jax.vmap(lambda s, *x: fit.run(s, *x, steps=steps), in_axes=in_axes))
+    compiled = run.lower(state, *extra, data).compile()
+    jax.block_until_ready(compiled(state, *extra, data))
+    start = time.perf_counter()
+    jax.block_until_ready(compiled(state, *extra, data))
+    return (time.perf_counter() - start) / steps
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="kitchen")
+    parser.add_argument("--dataset", type=Path, required=True, help="an oracle stage's dataset/ folder")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--sentence-readout", default="sentence+prefixes")
+    args = parser.parse_args()
+    cache = build_cache(args.env, progress=False)
+    data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
+    config = get_recipe(args.env).talar
+    rows = config.referential_batch_size * cache.max_tokens
+    # the per-row layout: tables at least as large as a step's rows make the fits take the per-row branch
+    per_row = data._replace(
+        prefix_table=np.zeros((rows + 1, data.prefix_table.shape[1]), np.float32),
+        dataset_sentences=np.arange(config.batch_size),
+    )
+    targets = np.zeros((args.seeds, data.states.shape[0], config.spec.size), np.float32)
+    fits = {
+        "referential game": (make_train_task_language(config, cache.vocab_size, cache.max_tokens), ()),
+        "translator": (make_train_translator(config), (targets,)),
+    }
+    results = []
+    for name, (fit, extra) in fits.items():
+        cheap = time_fit(fit, data, extra, args.seeds, args.steps)
+        plain = time_fit(fit, per_row, extra, args.seeds, args.steps)
+        results.append({"fit": name, "chosen_ms_per_step": 1000 * cheap, "per_row_ms_per_step": 1000 * plain})
+        print(
+            f"{args.env} {name}: chosen layout {1000 * cheap:.1f} ms/step, per-row {1000 * plain:.1f} ms/step "
+            f"({plain / cheap:.2f}x)",
+            flush=True,
+        )
+    sizes = {
+        "rows_per_rg_step": rows,
+        "distinct_training_prefixes": int(data.prefix_table.shape[0]),
+        "translator_batch": config.batch_size,
+        "distinct_training_sentences": int(data.dataset_sentences.shape[0]),
+    }
+    machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+    RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+    out = RESULTS_DIR / f"supervised_layouts_{args.env}.json"
+    arguments = {**vars(args), "dataset": str(args.dataset)}
+    payload = {"machine": machine, "args": arguments, "sizes": sizes, "rows": results}
+    out.write_text(json.dumps(payload, indent=2))
+    print(json.dumps(sizes))
+
+
+if __name__ == "__main__":
+    main()
