@@ -23,7 +23,7 @@ CONFIG = PPOConfig(
     eval_episodes=64,
     ent_coef=0.0,
 )  # 5 chunks of 5120 steps
-TIMING_KEYS = ("train/sps", "train/chunk_s", "train/wall_s", "train/compile_s")
+TIMING_KEYS = ("eval/seconds", "train/sps", "train/chunk_s", "train/wall_s", "train/compile_s")
 
 
 def _comparable(row):
