@@ -91,9 +91,11 @@ class ExperimentConfig:
     config's seeds/seed)."""
     progress: bool = True
     """Progress bars and per-chunk lines on the terminal."""
+    deployment_strip: bool = True
+    """Write ``deployment.png`` after training: one learned episode per showcased goal (paper Fig. 17/18)."""
 
 
-KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress")
+KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress", "deployment_strip")
 """ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
 
 
@@ -385,7 +387,8 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
     stages.update(setup.stages)
     stages["ifp"] = stage_ifp(config, setup, env)
     summary = write_report(config, stages, setup, cache)
-    print(write_deployment_strip(config, folder, cache))
+    if config.deployment_strip:
+        print(write_deployment_strip(config, folder, cache))
     summary["wall_s_this_call"] = time.perf_counter() - start
     print((folder / "results.md").read_text())
     print(f"outputs in {folder}: config.json, results.md, summary.json, curves.png, tsne.png, deployment.png")

@@ -9,7 +9,7 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
-QUICK = ["--quick", "--seeds", "2", "--no-progress", "--encoder", TINY_BERT]
+QUICK = ["--quick", "--seeds", "2", "--no-progress", "--no-deployment-strip", "--encoder", TINY_BERT]
 """A ``--quick`` experiment run with the small BERT folder shipped with the tests (caches build in seconds)."""
 
 
