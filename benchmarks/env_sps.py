@@ -53,8 +53,11 @@ BENCH_CONFIGS: dict[str, BenchConfig] = {
 }
 
 
-def _time_backend(name: str, physics: str, batch: int, config: BenchConfig, min_seconds: float) -> dict:
-    env = envs.wrap_for_training(envs.make(name, physics=physics))
+def time_backend(
+    name: str, physics: str, batch: int, config: BenchConfig, min_seconds: float, env_options: dict | None = None
+) -> dict:
+    """Steady-state env steps/s of ``batch`` training-wrapped envs with random actions (compile time apart)."""
+    env = envs.wrap_for_training(envs.make(name, physics=physics, **(env_options or {})))
 
     def init(key):
         return jax.vmap(env.reset)(jax.random.split(key, batch))
@@ -99,7 +102,7 @@ def run(name: str, quick: bool = False) -> dict:
     print(f"  measured original style: {original_before:.0f} steps/s", flush=True)
     for physics, batches in (("c", config.c_batches), ("mjx", config.mjx_batches)):
         for batch in batches[:2] if quick else batches:
-            rows.append(_time_backend(name, physics, batch, config, min_seconds))
+            rows.append(time_backend(name, physics, batch, config, min_seconds))
             print(f"  measured {physics} batch {batch}: {rows[-1]['steps_per_s']:.0f} steps/s", flush=True)
     # the machine is shared: the baseline is timed before and after the JAX rows, ratios use the mean
     original_after = original_steps_per_second(name, original_steps)

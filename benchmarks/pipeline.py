@@ -28,34 +28,11 @@ configure()
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-import envs  # noqa: E402
-from benchmarks.env_sps import random_actions  # noqa: E402
+from benchmarks.env_sps import BenchConfig, time_backend  # noqa: E402
 from experiments.pipeline import default_config, run  # noqa: E402
 from talar_jax.ppo import derive  # noqa: E402
 
 RESULTS_DIR = Path(__file__).parent / "results"
-
-
-def bare_physics_sps(env_name: str, env_options: dict, batch: int, chunk_steps: int, min_seconds: float) -> dict:
-    """Env steps/s of the batched C backend (time limit and auto-reset included) with random actions, no policy."""
-    env = envs.wrap_for_training(envs.make(env_name, physics="c", **env_options))
-
-    def chunk(state, key):
-        actions = random_actions(env.action_spec, key, (chunk_steps, batch))
-        return jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), state, actions)[0]
-
-    key = jax.random.key(0)
-    start = time.perf_counter()
-    state = jax.jit(lambda k: jax.vmap(env.reset)(jax.random.split(k, batch)))(key)
-    chunk_jit = jax.jit(chunk).lower(state, key).compile()
-    compile_s = time.perf_counter() - start
-    state = jax.block_until_ready(chunk_jit(state, jax.random.key(1)))  # warm-up
-    calls, start = 0, time.perf_counter()
-    while calls == 0 or time.perf_counter() - start < min_seconds:
-        state = jax.block_until_ready(chunk_jit(state, jax.random.key(2 + calls)))
-        calls += 1
-    seconds = time.perf_counter() - start
-    return {"sps": calls * chunk_steps * batch / seconds, "compile_s": compile_s, "batch": batch}
 
 
 def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
@@ -85,9 +62,11 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
     eval_s = float(np.mean(evals[1:] or evals)) if evals else 0.0
     evals_full = -(-(full_steps // sizes.env_steps_per_chunk) // base.ifp.eval_every_chunks)
     ifp_full_s = train_full_s + evals_full * eval_s
-    physics = bare_physics_sps(
-        env_name, config.env_options, base.ifp.num_envs * seeds, base.ifp.rollout_length, min_seconds=5.0
+    batch = base.ifp.num_envs * seeds
+    timed = time_backend(
+        env_name, "c", batch, BenchConfig((), (), chunk_steps=base.ifp.rollout_length), 5.0, config.env_options
     )
+    physics = {"sps": timed["steps_per_s"], "compile_s": timed["compile_s"], "batch": batch}
     physics_full_s = full_steps * seeds / physics["sps"]
     supervised_s = sum(
         stages[name]["seconds"] - (stages[name]["compile_s"] or 0.0)

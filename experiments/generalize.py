@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import jax
 import numpy as np
 import tyro
 
+from experiments.instruct import agent_command
 from talar_jax.agent import Agent, AgentError, find_method_folder
 from talar_jax.language import load_instructions, load_user_instructions
 
@@ -113,12 +113,7 @@ def generalize(args: GeneralizeArgs) -> dict:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    args = tyro.cli(GeneralizeArgs, args=argv, description=__doc__)
-    try:
-        return generalize(args)
-    except AgentError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    return agent_command(GeneralizeArgs, generalize, argv, __doc__)
 
 
 if __name__ == "__main__":

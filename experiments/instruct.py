@@ -139,13 +139,18 @@ def instruct(args: InstructArgs) -> dict:
     return result
 
 
-def main(argv: list[str] | None = None) -> dict:
-    args = tyro.cli(InstructArgs, args=argv, description=__doc__)
+def agent_command(cls, function, argv: list[str] | None, description: str | None):
+    """Parses ``cls`` and calls ``function``; an ``AgentError`` prints one ``error:`` line and exits with status 2."""
+    args = tyro.cli(cls, args=argv, description=description)
     try:
-        return instruct(args)
+        return function(args)
     except AgentError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+
+
+def main(argv: list[str] | None = None) -> dict:
+    return agent_command(InstructArgs, instruct, argv, __doc__)
 
 
 if __name__ == "__main__":
