@@ -22,6 +22,19 @@ from envs import kitchen as _kitchen  # noqa: E402,F401  isort: skip
 
 ALL_ENVS: tuple[str, ...] = registered_names()
 
+_GYMNASIUM_ADAPTERS = ("to_gymnasium", "to_gymnasium_vector")
+
+
+def __getattr__(name: str):
+    """``to_gymnasium`` / ``to_gymnasium_vector`` from ``envs.gymnasium_adapter``, imported (with Gymnasium, the
+    optional extra ``.[gymnasium]``) on first use only."""
+    if name in _GYMNASIUM_ADAPTERS:
+        from envs import gymnasium_adapter
+
+        return getattr(gymnasium_adapter, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "ALL_ENVS",
     "PHYSICS_BACKENDS",
@@ -42,6 +55,8 @@ __all__ = [
     "make",
     "make_physics",
     "register_environment",
+    "to_gymnasium",
+    "to_gymnasium_vector",
     "wrap_for_brax_training",
     "wrap_for_training",
 ]

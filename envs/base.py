@@ -66,6 +66,10 @@ class EnvConfig:
 
     episode_length: int = 50
     """Steps before the episode is truncated (applied by ``envs.wrappers.EpisodeWrapper``)."""
+    goal_observation: bool = False
+    """Append the episode's goal to the observation (``Env.goal_features``), so that a stock trainer that sees
+    only ``state.obs`` can learn the goal task. Off by default: TALAR's policies read the goal from language.
+    Envs with a single fixed task (``clevr-arrangement``, ``kitchen-all``) have no goal part."""
 
 
 def replace_config(config: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
@@ -147,7 +151,29 @@ class Env(abc.ABC):
 
     @property
     @abc.abstractmethod
-    def observation_size(self) -> int: ...
+    def state_observation_size(self) -> int:
+        """Size of the observation without the goal part (the env's own observation)."""
+
+    @property
+    def goal_feature_size(self) -> int:
+        """Size of ``goal_features`` (0 for envs without a goal choice)."""
+        return 0
+
+    def goal_features(self, task: Any) -> jax.Array:
+        """The goal part of the observation, a float32 vector of ``goal_feature_size`` entries."""
+        return jnp.zeros((0,), jnp.float32)
+
+    @property
+    def observation_size(self) -> int:
+        """Size of ``state.obs``: the env's observation, plus the goal part when ``goal_observation`` is on."""
+        goal = self.goal_feature_size if self.config.goal_observation else 0
+        return self.state_observation_size + goal
+
+    def observe_goal(self, obs: jax.Array, task: Any) -> jax.Array:
+        """``obs`` with the goal part appended when ``goal_observation`` is on (subclasses call it last)."""
+        if not self.config.goal_observation:
+            return obs
+        return jnp.concatenate([obs, self.goal_features(task).astype(obs.dtype)])
 
     @property
     def action_size(self) -> int:

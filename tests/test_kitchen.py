@@ -17,6 +17,7 @@ MAIN_INDEX = {  # the sub-task's main observation coordinate
     "slide cabinet": 19,
     "top burner": 15,
     "bottom burner": 11,
+    "hinge cabinet": 21,
 }
 # Where that coordinate must lie for success (spec §1.2, brute-forced from the goals and couplings).
 SUCCESS_BAND = {
@@ -26,11 +27,12 @@ SUCCESS_BAND = {
     "slide cabinet": (0.07, 0.44),
     "top burner": (-1.22, -0.62),
     "bottom burner": (-1.18, -0.58),
+    "hinge cabinet": (1.15, 1.57),
 }
 
 
 def _scripted_rollouts(env: KitchenEnv, seed: int = 0) -> dict[str, np.ndarray]:
-    """All six sub-tasks under the scripted controller, as one jitted vmapped scan (280 steps, no reset)."""
+    """Every sub-task of ``env`` under the scripted controller, as one jitted vmapped scan (280 steps, no reset)."""
 
     def rollout(goal, key):
         state = env.reset(key)
@@ -43,8 +45,8 @@ def _scripted_rollouts(env: KitchenEnv, seed: int = 0) -> dict[str, np.ndarray]:
 
         return jax.lax.scan(body, state, jnp.arange(env.episode_length))[1]
 
-    keys = jax.random.split(jax.random.key(seed), tasks.NUM_TASKS)
-    qpos, obs, actions, success, done = jax.jit(jax.vmap(rollout))(jnp.arange(tasks.NUM_TASKS), keys)
+    keys = jax.random.split(jax.random.key(seed), env.num_goals)
+    qpos, obs, actions, success, done = jax.jit(jax.vmap(rollout))(jnp.arange(env.num_goals), keys)
     return {
         "qpos": np.asarray(qpos),
         "obs": np.asarray(obs),
@@ -68,18 +70,18 @@ def _replay(env: KitchenEnv, actions: np.ndarray) -> np.ndarray:
 
 
 def _first_success(success: np.ndarray) -> np.ndarray:
-    """(6, T) -> (6,) first step with success, -1 if none."""
+    """(G, T) -> (G,) first step with success, -1 if none."""
     return np.where(success.any(axis=1), np.argmax(success > 0.5, axis=1), -1)
 
 
 @pytest.fixture(scope="module")
 def mjx_rollouts():
-    return _scripted_rollouts(envs.make("kitchen", physics="mjx"))
+    return _scripted_rollouts(envs.make("kitchen", physics="mjx", hinge_cabinet_task=True))
 
 
 @pytest.fixture(scope="module")
 def c_rollouts():
-    return _scripted_rollouts(envs.make("kitchen", physics="c"))
+    return _scripted_rollouts(envs.make("kitchen", physics="c", hinge_cabinet_task=True))
 
 
 @pytest.fixture(scope="module")
@@ -88,10 +90,11 @@ def c_env_noiseless():
 
 
 # --- solvability -------------------------------------------------------------------------------------------
-def test_scripted_controller_solves_all_six_subtasks_in_mjx(mjx_rollouts):
+def test_scripted_controller_solves_all_seven_subtasks_in_mjx(mjx_rollouts):
+    # TALAR's six and the hinge cabinet: its door swings open (observation 21 reaches D4RL's goal band)
     first = _first_success(mjx_rollouts["success"])
-    assert np.all(first >= 0), dict(zip(tasks.TASK_NAMES, first.tolist(), strict=True))
-    for goal, name in enumerate(tasks.TASK_NAMES):
+    assert np.all(first >= 0), dict(zip(tasks.ALL_TASK_NAMES, first.tolist(), strict=True))
+    for goal, name in enumerate(tasks.ALL_TASK_NAMES):
         step = first[goal]
         assert mjx_rollouts["done"][goal, step] == 1.0  # terminates on success
         assert not mjx_rollouts["success"][goal, :step].any()
@@ -99,8 +102,8 @@ def test_scripted_controller_solves_all_six_subtasks_in_mjx(mjx_rollouts):
         value = mjx_rollouts["obs"][goal, step, MAIN_INDEX[name]]
         assert low - 0.01 <= value <= high + 0.01, (name, value)
         # the other sub-tasks' objects were left alone (each episode is about one sub-task)
-        others = [g for g in range(tasks.NUM_TASKS) if g != goal]
-        distances = np.asarray(tasks.task_distances(mjx_rollouts["obs"][goal, step]))
+        others = [g for g in range(len(tasks.ALL_TASK_NAMES)) if g != goal]
+        distances = np.asarray(tasks.task_distances(mjx_rollouts["obs"][goal, step], len(tasks.ALL_TASK_NAMES)))
         assert np.all(distances[others] > tasks.BONUS_THRESH), (name, distances)
 
 
@@ -251,8 +254,8 @@ def test_clear_errors(c_env_noiseless):
 def test_scripted_posture_targets_are_the_scripted_controllers_posture_at_success(c_rollouts):
     first = _first_success(c_rollouts["success"])
     assert np.all(first >= 0)
-    at_success = c_rollouts["obs"][np.arange(tasks.NUM_TASKS), first, : tasks.NUM_ROBOT_JOINTS]
-    np.testing.assert_allclose(at_success, tasks.SCRIPTED_POSTURE, atol=0.05)
+    at_success = c_rollouts["obs"][np.arange(len(first)), first, : tasks.NUM_ROBOT_JOINTS]
+    np.testing.assert_allclose(at_success, tasks.posture_targets("scripted", len(first)), atol=0.05)
 
 
 def _hold_posture_progress(posture_targets: str) -> np.ndarray:

@@ -124,8 +124,24 @@ class ClevrEnv(Env):
         return 1 if self._arrangement else tasks.NUM_GOALS
 
     @property
-    def observation_size(self) -> int:
+    def state_observation_size(self) -> int:
         return 2 * tasks.NUM_BALLS
+
+    @property
+    def goal_feature_size(self) -> int:
+        """One-hots of the source ball (5), the reference ball (5) and the relation (4); none for arrangement."""
+        return 0 if self._arrangement else 2 * tasks.NUM_BALLS + tasks.NUM_RELATIONS
+
+    def goal_features(self, task: ClevrTask) -> jax.Array:
+        if self._arrangement:
+            return jnp.zeros((0,), jnp.float32)
+        return jnp.concatenate(
+            [
+                jax.nn.one_hot(task.source, tasks.NUM_BALLS),
+                jax.nn.one_hot(task.destination, tasks.NUM_BALLS),
+                jax.nn.one_hot(task.relation, tasks.NUM_RELATIONS),
+            ]
+        )
 
     # --- functional API -------------------------------------------------------------------------
     def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
@@ -144,7 +160,7 @@ class ClevrEnv(Env):
                 return key, tasks.sample_ball_positions(sub), carry[2] + 1
 
             _, ball_xy, _ = jax.lax.while_loop(already_met, redraw, (rng_goal, ball_xy, jnp.int32(0)))
-        qpos = jnp.zeros(self.mj_model.nq, jnp.float32).at[: self.observation_size].set(ball_xy.reshape(-1))
+        qpos = jnp.zeros(self.mj_model.nq, jnp.float32).at[: self.state_observation_size].set(ball_xy.reshape(-1))
         data = self.physics.init(qpos)
         if self._arrangement:
             none = jnp.int32(-1)
@@ -161,20 +177,20 @@ class ClevrEnv(Env):
             )
         zero = jnp.zeros((), jnp.float32)
         metrics = self._metrics(ball_xy, task, zero, zero)
-        return State(data=data, obs=ball_xy.reshape(-1), reward=zero, done=zero, metrics=metrics, info={}, task=task)
+        obs = self.observe_goal(ball_xy.reshape(-1), task)
+        return State(data=data, obs=obs, reward=zero, done=zero, metrics=metrics, info={}, task=task)
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.push_action(state, action)
         ball, direction = action // tasks.NUM_DIRECTIONS, action % tasks.NUM_DIRECTIONS
         force = jnp.asarray(tasks.PUSH_DIRECTIONS)[direction]
         data: PhysicsState = state.data
-        ball_xy = data.qpos[: self.observation_size].reshape(tasks.NUM_BALLS, 2)
+        ball_xy = data.qpos[: self.state_observation_size].reshape(tasks.NUM_BALLS, 2)
         pusher_xy = ball_xy[ball] - tasks.PUSH_OFFSET * force
         qpos, qvel = data.qpos.at[_PUSHER_QPOS].set(pusher_xy), data.qvel.at[_PUSHER_QPOS].set(0.0)
         teleported = data.replace(qpos=qpos, qvel=qvel)
         data = self.physics.step(teleported, force, self.config.substeps)
-        obs = data.qpos[: self.observation_size]
-        ball_xy = obs.reshape(tasks.NUM_BALLS, 2)
+        ball_xy = data.qpos[: self.state_observation_size].reshape(tasks.NUM_BALLS, 2)
         task: ClevrTask = state.task
         if self._arrangement:
             satisfied = tasks.arrangement_satisfied(ball_xy)
@@ -192,6 +208,7 @@ class ClevrEnv(Env):
         success, failure = success.astype(jnp.float32), failure.astype(jnp.float32)
         metrics = self._metrics(ball_xy, task, success, failure)
         done = jnp.maximum(success, failure)
+        obs = self.observe_goal(ball_xy.reshape(-1), task)
         return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
 
     def _metrics(self, ball_xy: jax.Array, task: ClevrTask, success: jax.Array, failure: jax.Array) -> dict:

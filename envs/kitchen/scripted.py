@@ -24,6 +24,7 @@ _ARM_LOW = np.array([-2.85, -1.72, -2.85, -3.0, -2.85, 0.05, -2.85])  # joint ra
 _ARM_HIGH = np.array([2.85, 1.72, 2.85, -0.45, 2.85, 2.08, 2.85])  # servo-target clip at 0
 _OPEN, _CLOSED = 0.04, 0.0
 _FORWARD, _DOWN, _LEFT = (0.0, 1.0, 0.0), (0.0, 0.0, -1.0), (-1.0, 0.0, 0.0)
+_FORWARD_UP = (0.0, 0.7071, 0.7071)
 
 
 def _microwave_arc(angle: float, z: float) -> tuple[float, float, float]:
@@ -36,6 +37,14 @@ def _microwave_tangent(angle: float) -> tuple[float, float, float]:
     """Direction the microwave handle moves in when the door opens further from ``angle``."""
     c, s = np.cos(angle), np.sin(angle)
     return (0.038 * c + 0.486 * s, 0.038 * s - 0.486 * c, 0.0)
+
+
+def _hinge_arc(angle: float) -> tuple[float, float, float]:
+    """Where the fingertips pull when the right hinge door is at ``angle``: just behind its handle, 2 cm below the
+    handle's middle (hinge at (-0.224, 0.71); the point sits 0.321 m left of and 0.08 m in front of the hinge at
+    angle 0). The gripper points forward and up there: pointing straight forward, the arm cannot reach it."""
+    c, s = np.cos(angle), np.sin(angle)
+    return (-0.224 - 0.321 * c + 0.08 * s, 0.71 - 0.321 * s - 0.08 * c, 2.58)
 
 
 # Per task: waypoints (TCP position, gripper pointing axis, finger-opening axis or None, fingers, steps to reach).
@@ -75,6 +84,12 @@ _PLANS: dict[str, list[tuple[tuple[float, float, float], tuple, tuple | None, fl
         ((-0.31, 0.655, 2.258), _FORWARD, None, _CLOSED, 20),
         ((-0.225, 0.655, 2.258), _FORWARD, None, _CLOSED, 35),
         ((-0.225, 0.60, 2.258), _FORWARD, None, _CLOSED, 20),
+    ],
+    "hinge cabinet": [
+        ((-0.44, 0.55, 2.58), _FORWARD_UP, None, _CLOSED, 45),
+        ((-0.44, 0.63, 2.58), _FORWARD_UP, None, _CLOSED, 20),
+        (_hinge_arc(0.0), _FORWARD_UP, None, _CLOSED, 25),
+        *[(_hinge_arc(a), _FORWARD_UP, None, _CLOSED, 20) for a in (0.3, 0.6, 0.9, 1.2, 1.5)],
     ],
 }
 NUM_WAYPOINTS = max(len(plan) for plan in _PLANS.values())
@@ -128,7 +143,7 @@ def waypoint_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solves every plan once.
 
     Returns:
-        waypoints (6, W, 9) joint targets, feedforward (6, W, 9) gravity actions, ends (6, W) int32 step at
+        waypoints (7, W, 9) joint targets, feedforward (7, W, 9) gravity actions, ends (7, W) int32 step at
         which each waypoint is reached (targets are interpolated linearly in between; later padding repeats).
     """
     from envs.kitchen.env import KitchenEnv  # local: the env module imports nothing from here
@@ -137,10 +152,10 @@ def waypoint_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     data = mujoco.MjData(model)
     init_qpos = KitchenEnv(physics="c").init_qpos
     site = model.site("end_effector").id
-    waypoints = np.zeros((tasks.NUM_TASKS, NUM_WAYPOINTS, 9))
+    waypoints = np.zeros((len(tasks.ALL_TASK_NAMES), NUM_WAYPOINTS, 9))
     feedforward = np.zeros_like(waypoints)
-    ends = np.zeros((tasks.NUM_TASKS, NUM_WAYPOINTS), np.int32)
-    for goal, name in enumerate(tasks.TASK_NAMES):
+    ends = np.zeros((len(tasks.ALL_TASK_NAMES), NUM_WAYPOINTS), np.int32)
+    for goal, name in enumerate(tasks.ALL_TASK_NAMES):
         q, step = init_qpos[:7].astype(np.float64), 0
         for k in range(NUM_WAYPOINTS):
             if k < len(_PLANS[name]):
@@ -163,7 +178,7 @@ def scripted_action(obs: jax.Array, goal: jax.Array, step: jax.Array) -> jax.Arr
 
     Args:
         obs: (30,) observation (only the 9 robot joints are used).
-        goal: () int goal id (index in ``tasks.TASK_NAMES``).
+        goal: () int goal id (index in ``tasks.ALL_TASK_NAMES``).
         step: () int steps since reset.
 
     Returns:
@@ -183,7 +198,7 @@ def noisy_scripted_action(state, rng: jax.Array, noise_scale: float = 0.1) -> ja
     """The scripted action for the state's own sub-task plus Gaussian exploration noise (one env, jit-able).
 
     Reads the step count from ``state.info["steps"]``, which ``envs.wrappers.EpisodeWrapper`` (the time limit)
-    adds. Used to collect a task dataset that covers all six sub-tasks.
+    adds. Used to collect a task dataset that covers every sub-task.
     """
     if "steps" not in state.info:
         raise ValueError(

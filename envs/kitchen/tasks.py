@@ -15,6 +15,8 @@ import numpy as np
 # Order of the paper's listing (Appendix D.1.1) and of the instruction data.
 TASK_NAMES: tuple[str, ...] = ("microwave", "kettle", "light switch", "slide cabinet", "top burner", "bottom burner")
 NUM_TASKS = len(TASK_NAMES)
+ALL_TASK_NAMES: tuple[str, ...] = (*TASK_NAMES, "hinge cabinet")
+"""TALAR's six sub-tasks, then D4RL's seventh (goal id 6, offered by the ``hinge_cabinet_task`` option)."""
 OBSERVATION_SIZE = 30
 NUM_ROBOT_JOINTS = 9
 
@@ -33,10 +35,11 @@ _TASK_GOALS: dict[str, tuple[tuple[int, ...], tuple[float, ...]]] = {
     "slide cabinet": ((19,), (0.37,)),
     "top burner": ((15, 16), (-0.92, -0.01)),
     "bottom burner": ((11, 12), (-0.88, -0.01)),
+    "hinge cabinet": ((20, 21), (0.0, 1.45)),  # D4RL: the right door (index 21) opens
 }
-TASK_MASK = np.zeros((NUM_TASKS, OBSERVATION_SIZE), np.float32)  # (6, 30) 1 at each task's indices
-TASK_GOAL = np.zeros((NUM_TASKS, OBSERVATION_SIZE), np.float32)  # (6, 30) goal values at those indices
-for _task_id, _name in enumerate(TASK_NAMES):
+TASK_MASK = np.zeros((len(ALL_TASK_NAMES), OBSERVATION_SIZE), np.float32)  # (7, 30) 1 at each task's indices
+TASK_GOAL = np.zeros((len(ALL_TASK_NAMES), OBSERVATION_SIZE), np.float32)  # (7, 30) goal values at those indices
+for _task_id, _name in enumerate(ALL_TASK_NAMES):
     _indices, _goal = _TASK_GOALS[_name]
     TASK_MASK[_task_id, list(_indices)] = 1.0
     TASK_GOAL[_task_id, list(_indices)] = _goal
@@ -69,6 +72,17 @@ SCRIPTED_POSTURE = np.array([_SCRIPTED_POSTURES[name] for name in TASK_NAMES], n
 
 POSTURE_TARGETS: dict[str, np.ndarray] = {"talar": TARGET_POSTURE, "scripted": SCRIPTED_POSTURE}
 """Target robot postures of the posture term: TALAR's hard-coded ones, or the scripted controller's at success."""
+
+# The hinge cabinet is not a TALAR task, so it has no TALAR posture: both posture targets use the scripted
+# controller's posture at success (tests/test_kitchen.py re-derives it).
+# (mean over five noisy episodes: the wrist joint 5 varies by +-0.05 between them)
+HINGE_CABINET_POSTURE = np.array((-0.7058, -1.1899, 0.7816, -2.1672, -1.7703, 1.1618, 0.5678, 0.0, 0.0050), np.float32)
+
+
+def posture_targets(name: str, num_tasks: int = NUM_TASKS) -> np.ndarray:
+    """(num_tasks, 9) target postures of ``POSTURE_TARGETS[name]``, with the hinge cabinet's as row 6 if asked."""
+    targets = POSTURE_TARGETS[name]
+    return np.concatenate([targets, HINGE_CABINET_POSTURE[None]])[:num_tasks]
 
 # The deterministic reset observation (the original ``init_qpos``; kettle quaternion not normalised).
 INIT_OBS = np.array(
@@ -121,23 +135,24 @@ NOISE_AMPLITUDE = np.array(
 
 
 def task_id(name: str) -> int:
-    """The goal id of a sub-task name, with one clear error listing the valid names."""
-    if name not in TASK_NAMES:
-        raise ValueError(f"unknown kitchen task {name!r}; valid tasks: {', '.join(TASK_NAMES)}")
-    return TASK_NAMES.index(name)
+    """The goal id of a sub-task name (``ALL_TASK_NAMES``), with one clear error listing the valid names."""
+    if name not in ALL_TASK_NAMES:
+        raise ValueError(f"unknown kitchen task {name!r}; valid tasks: {', '.join(ALL_TASK_NAMES)}")
+    return ALL_TASK_NAMES.index(name)
 
 
-def task_distances(obs: jax.Array) -> jax.Array:
+def task_distances(obs: jax.Array, num_tasks: int = NUM_TASKS) -> jax.Array:
     """Distance of every sub-task to its goal.
 
     Args:
         obs: (..., 30) observation (noisy in TALAR's protocol).
+        num_tasks: 6 (TALAR's sub-tasks) or 7 (with the hinge cabinet).
 
     Returns:
-        (..., 6) Euclidean norm over each task's indices of (obs - goal).
+        (..., num_tasks) Euclidean norm over each task's indices of (obs - goal).
     """
-    diff = obs[..., None, :] - TASK_GOAL
-    return jnp.sqrt(jnp.sum(TASK_MASK * diff * diff, axis=-1))
+    diff = obs[..., None, :OBSERVATION_SIZE] - TASK_GOAL[:num_tasks]
+    return jnp.sqrt(jnp.sum(TASK_MASK[:num_tasks] * diff * diff, axis=-1))
 
 
 def sample_goal(rng: jax.Array, distances: jax.Array) -> jax.Array:
@@ -145,7 +160,7 @@ def sample_goal(rng: jax.Array, distances: jax.Array) -> jax.Array:
 
     Args:
         rng: PRNG key.
-        distances: (6,) distances at reset.
+        distances: (num_tasks,) distances at reset.
 
     Returns:
         () int32 goal id.
@@ -169,7 +184,7 @@ def single_task_reward(
         distance: () distance after the step.
         robot_qpos: (9,) robot joint observation after the step.
         goal: () int32 goal id.
-        target_postures: (6, 9) target robot posture per sub-task (``POSTURE_TARGETS``; default TALAR's).
+        target_postures: (num_tasks, 9) target robot posture per sub-task (``posture_targets``; default TALAR's).
 
     Returns:
         dict of () terms: ``progress`` (previous minus current distance), ``success`` (+1 when below
@@ -190,11 +205,11 @@ def all_tasks_update(completed: jax.Array, distances: jax.Array) -> tuple[jax.Ar
     """Kitchen-all bookkeeping: each sub-task pays 1 the first time it is complete.
 
     Args:
-        completed: (6,) float mask of sub-tasks completed before this step.
-        distances: (6,) distances after the step.
+        completed: (num_tasks,) float mask of sub-tasks completed before this step.
+        distances: (num_tasks,) distances after the step.
 
     Returns:
-        (completed', reward): the updated (6,) mask and the () number of newly completed sub-tasks.
+        (completed', reward): the updated mask and the () number of newly completed sub-tasks.
     """
     newly = (distances < BONUS_THRESH) & (completed < 0.5)
     return jnp.maximum(completed, newly.astype(jnp.float32)), jnp.sum(newly).astype(jnp.float32)
