@@ -142,3 +142,40 @@ def test_clear_errors(compiled):
     else:
         with pytest.raises(ValueError, match=f"shape \\({spec.size},\\)"):
             env.step(state, jnp.zeros(spec.size + 1))
+
+
+@pytest.mark.parametrize("name", envs.ALL_ENVS)
+def test_goal_observation_appends_the_tasks_goal(name):
+    plain = envs.make(name, physics="c")
+    env = envs.make(name, physics="c", goal_observation=True)
+    keys = jax.random.split(jax.random.key(3), 16)
+    base, states = jax.jit(jax.vmap(plain.reset))(keys), jax.jit(jax.vmap(env.reset))(keys)
+    assert states.obs.shape == (16, env.observation_size)
+    assert env.observation_size == plain.observation_size + env.goal_feature_size
+    np.testing.assert_array_equal(states.obs[:, : plain.observation_size], base.obs)  # same env part
+    goal_part = np.asarray(states.obs[:, plain.observation_size :])
+    if name in ("clevr-arrangement", "kitchen-all"):  # a single fixed task: no goal part
+        assert goal_part.shape == (16, 0)
+    elif name == "clevr":  # one-hots of source, reference ball and relation
+        task = states.task
+        expected = np.concatenate(
+            [np.eye(5)[task.source], np.eye(5)[task.destination], np.eye(4)[task.relation]], axis=1
+        )
+        np.testing.assert_array_equal(goal_part, expected)
+    else:  # kitchen: one-hot of the sub-task
+        np.testing.assert_array_equal(goal_part, np.eye(env.num_goals)[np.asarray(states.task.goal)])
+    # the goal part stays after a step, and fixed goals show up in it
+    action = random_actions(env.action_spec, jax.random.key(4), ())
+    state = jax.jit(env.step)(env.reset(jax.random.key(5), goal=None), action)
+    assert state.obs.shape == (env.observation_size,)
+    np.testing.assert_array_equal(state.obs[plain.observation_size :], env.goal_features(state.task))
+
+
+def test_kitchen_hinge_cabinet_is_a_seventh_goal():
+    env = envs.make("kitchen", physics="c", hinge_cabinet_task=True, goal_observation=True)
+    assert env.num_goals == 7 and env.task_names[-1] == "hinge cabinet" and env.observation_size == 37
+    goals = np.asarray(jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 700)).task.goal)
+    assert np.bincount(goals, minlength=7).min() > 60  # sampled like the other six
+    assert envs.make("kitchen-all", physics="c", hinge_cabinet_task=True).reset(
+        jax.random.key(0)
+    ).task.completed.shape == (7,)

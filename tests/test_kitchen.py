@@ -284,3 +284,10 @@ def test_posture_term_leads_the_hand_to_the_top_burner_knob():
     top = tasks.task_id("top burner")
     assert _hold_posture_progress("talar")[top] < 0.01
     assert _hold_posture_progress("scripted")[top] > 0.4  # of the 0.62 the knob must turn
+
+
+def test_scripted_controller_solves_every_subtask_with_arm_collisions():
+    # the arm's forearm, wrist and hand collide with the range hood, stove and cabinets: every plan still succeeds
+    env = envs.make("kitchen", physics="c", hinge_cabinet_task=True, noise_ratio=0.0, arm_collisions=True)
+    assert env.mj_model.npair == envs.make("kitchen", physics="c").mj_model.npair + 16
+    assert np.all(_first_success(_scripted_rollouts(env)["success"]) >= 0)

@@ -84,6 +84,7 @@ def posture_targets(name: str, num_tasks: int = NUM_TASKS) -> np.ndarray:
     targets = POSTURE_TARGETS[name]
     return np.concatenate([targets, HINGE_CABINET_POSTURE[None]])[:num_tasks]
 
+
 # The deterministic reset observation (the original ``init_qpos``; kettle quaternion not normalised).
 INIT_OBS = np.array(
     [
