@@ -9,6 +9,7 @@ Seeds run vmapped in one compiled program per stage, sharded over ``jax.devices(
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import sys
 import time
@@ -29,7 +30,7 @@ from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache, load_encoder
-from talar_jax.logging import TerminalLogger
+from talar_jax.logging import MultiLogger, TensorBoardLogger, TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
 from talar_jax.report import (
     GoalCurves,
@@ -93,9 +94,12 @@ class ExperimentConfig:
     """Progress bars and per-chunk lines on the terminal."""
     deployment_strip: bool = True
     """Write ``deployment.png`` after training: one learned episode per showcased goal (paper Fig. 17/18)."""
+    tensorboard: bool = False
+    """Also write the policy's training curves as TensorBoard scalars to ``<method>/ifp/ppo/tensorboard/``
+    (needs ``pip install -e .[tensorboard]``); ``tensorboard --logdir runs/`` follows a run while it trains."""
 
 
-KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress", "deployment_strip")
+KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress", "deployment_strip", "tensorboard")
 """ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
 
 
@@ -137,6 +141,8 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
     for name in ("oracle_env_steps", "num_tuples"):
         if getattr(config, name) is not None and getattr(config, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
+    if config.tensorboard and importlib.util.find_spec("tensorboardX") is None:
+        raise ValueError("--tensorboard needs tensorboardX: pip install -e .[tensorboard]")
     physics = config.physics or envs.default_backend()
     if physics not in envs.PHYSICS_BACKENDS:
         raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(envs.PHYSICS_BACKENDS)}")
@@ -217,14 +223,18 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
     key = ifp_key(config, setup.key)
 
     def body(stage_dir: Path) -> dict[str, Any]:
-        logger = TerminalLogger(("eval/train/success", "eval/test/success", "train/success", "train/sps"))
+        loggers = []
+        if config.progress:
+            loggers.append(TerminalLogger(("eval/train/success", "eval/test/success", "train/success", "train/sps")))
+        if config.tensorboard:
+            loggers.append(TensorBoardLogger(stage_dir / "ppo" / "tensorboard"))
         result = run_ppo(
             config.ifp,
             env,
             setup.conditioner,
             stage_dir / "ppo",
             progress=config.progress,
-            logger=logger if config.progress else None,
+            logger=MultiLogger(*loggers) if loggers else None,
             initial_params=setup.initial_params,
         )
         return {

@@ -89,6 +89,35 @@ class JsonLinesLogger:
         pass
 
 
+class TensorBoardLogger:
+    """Writes every numeric metric as a TensorBoard scalar under ``log_dir`` (``pip install -e .[tensorboard]``).
+
+    A metric with one value per seed is written as its mean (``key``) and per seed (``key/seed_<i>``); follow a run
+    with ``tensorboard --logdir <log_dir>`` while it trains.
+    """
+
+    def __init__(self, log_dir: str | Path):
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError as error:
+            raise ImportError("the TensorBoard writer needs tensorboardX: pip install -e .[tensorboard]") from error
+        self.writer = SummaryWriter(str(log_dir))
+
+    def write(self, step: int, metrics: dict[str, Any]) -> None:
+        for key, value in to_python(metrics).items():
+            values = value if isinstance(value, list) else [value]
+            if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+                continue  # nested, missing (NaN) or non-numeric
+            self.writer.add_scalar(key, float(np.mean(values)), step)
+            if len(values) > 1:
+                for seed, seed_value in enumerate(values):
+                    self.writer.add_scalar(f"{key}/seed_{seed}", float(seed_value), step)
+        self.writer.flush()
+
+    def close(self) -> None:
+        self.writer.close()
+
+
 class MultiLogger:
     """Forwards to several loggers."""
 
