@@ -52,12 +52,20 @@ class ActionSpec:
     ``discrete``: an integer in [0, size) or, for RL libraries that only emit continuous vectors
     (``brax.training.agents.ppo``), a float vector of ``size`` scores whose argmax is taken.
     ``continuous``: a float vector of ``size`` entries, clipped to [low, high].
+    ``multi_discrete``: an int vector with one entry per head (``sizes``).
     """
 
-    kind: Literal["discrete", "continuous"]
+    kind: Literal["discrete", "continuous", "multi_discrete"]
     size: int
     low: float = -1.0
     high: float = 1.0
+    sizes: tuple[int, ...] = ()
+    """``multi_discrete`` only: one integer per head, head i in [0, sizes[i]) (``size`` = sum(sizes), the number of
+    logits; Gymnasium's MultiDiscrete). Used by policies whose action is a code, e.g. a task-language code."""
+
+    def __post_init__(self):
+        if self.kind == "multi_discrete" and (not self.sizes or self.size != sum(self.sizes)):
+            raise ValueError(f"a multi_discrete ActionSpec needs sizes and size == sum(sizes), got {self}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -210,6 +210,11 @@ class Agent:
             return None
         return int(Counter(self._train_goals[same].tolist()).most_common(1)[0][0])
 
+    @property
+    def training_codes(self) -> np.ndarray:
+        """(N, code_size) the code of every training instruction of the run (HAL's high-level action space)."""
+        return self._train_codes.copy()
+
     def goal_code(self, goal: int) -> np.ndarray:
         """The code most of the goal's training instructions translate to."""
         rows, counts = np.unique(self._train_codes[self._train_goals == goal].round(3), axis=0, return_counts=True)

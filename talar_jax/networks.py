@@ -1,8 +1,9 @@
-"""Policy/value MLPs on [observation, conditioning vector] and the two action distributions (chosen by action spec)."""
+"""Policy/value MLPs on [observation, conditioning vector] and the action distributions (chosen by action spec)."""
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
@@ -120,7 +121,37 @@ class ClippedGaussian:
         return jnp.sum(dist_params[1] + 0.5 * (1.0 + _LOG_2PI), axis=-1)
 
 
-Distribution = Categorical | ClippedGaussian
+@dataclasses.dataclass(frozen=True)
+class FactorisedCategorical:
+    """Independent categoricals, one per head (head i over ``sizes[i]`` values), from logits (..., sum(sizes)).
+
+    Actions are int32 (..., num_heads); the log-probability and the entropy are the sums over heads. A task-language
+    code is such an action: N_pn two-way predicate heads and N_a argument heads of ``arg_size``.
+    """
+
+    sizes: tuple[int, ...]
+
+    def _split(self, logits: jax.Array) -> list[jax.Array]:
+        bounds = list(itertools.accumulate(self.sizes))[:-1]
+        return jnp.split(logits, bounds, axis=-1)
+
+    def sample(self, rng: jax.Array, logits: jax.Array) -> jax.Array:
+        keys = jax.random.split(rng, len(self.sizes))
+        heads = [jax.random.categorical(key, head) for key, head in zip(keys, self._split(logits), strict=True)]
+        return jnp.stack(heads, axis=-1).astype(jnp.int32)
+
+    def mode(self, logits: jax.Array) -> jax.Array:
+        return jnp.stack([jnp.argmax(head, axis=-1) for head in self._split(logits)], axis=-1).astype(jnp.int32)
+
+    def log_prob(self, logits: jax.Array, action: jax.Array) -> jax.Array:
+        heads = self._split(logits)
+        return sum(Categorical(h.shape[-1]).log_prob(h, action[..., i]) for i, h in enumerate(heads))
+
+    def entropy(self, logits: jax.Array) -> jax.Array:
+        return sum(Categorical(head.shape[-1]).entropy(head) for head in self._split(logits))
+
+
+Distribution = Categorical | ClippedGaussian | FactorisedCategorical
 
 
 def make_distribution(action_spec: ActionSpec) -> Distribution:
@@ -129,7 +160,9 @@ def make_distribution(action_spec: ActionSpec) -> Distribution:
         return Categorical(action_spec.size)
     if action_spec.kind == "continuous":
         return ClippedGaussian(action_spec.size, action_spec.low, action_spec.high)
-    raise ValueError(f"unknown action kind {action_spec.kind!r}; valid kinds: discrete, continuous")
+    if action_spec.kind == "multi_discrete":
+        return FactorisedCategorical(tuple(action_spec.sizes))
+    raise ValueError(f"unknown action kind {action_spec.kind!r}; valid kinds: discrete, continuous, multi_discrete")
 
 
 OBS_NORMALIZER = "obs_normalizer"

@@ -362,6 +362,7 @@ def summarize_eval(record: dict[str, np.ndarray], num_goals: int) -> dict[str, A
         "success_per_seed": (success.sum(1) / np.maximum(valid.sum(1), 1)).tolist(),
         "success_per_goal": [float(v) if n else None for v, n in zip(per_goal, counts, strict=True)],
         "episode_return": float(np.mean(record["episode_return"])),
+        "episode_return_per_seed": np.mean(np.asarray(record["episode_return"], np.float64), axis=1).tolist(),
         "episode_length": float(np.mean(record["episode_length"])),
     }
 

@@ -30,6 +30,9 @@ class ClevrConfig(EnvConfig):
     action_type: str = "discrete"
     """'discrete': 40 pushes (any ball, 8 directions); 'collect': TALAR's data-collection variant, 8 pushes of the
     goal's source ball only (the original collected its task dataset this way; goal task only)."""
+    arrangement_reward: str = "distinct"
+    """Arrangement task: the reward counts the 6 distinct constraints that hold ('distinct') or the paper's ten as
+    listed, coinciding ones counted as often as they are listed ('listed', 0..10)."""
     fail_on_displacement: bool = False
     """Goal task: terminate with -10 when a non-source ball moves > 0.2 from its episode-start position."""
     timestep: float = 0.02
@@ -72,8 +75,8 @@ class ClevrEnv(Env):
 
     ``goal``: reward 10 (d_prev - d) with d the distance from the source to destination + 0.195 u_relation,
     +100 and termination on success (right sector and centre distance < 0.39); optional -10 displacement
-    failure. ``arrangement``: reward = number of the 6 constraints holding (sector test, no distance limit);
-    terminates with success when all 6 hold.
+    failure. ``arrangement``: reward = number of the 6 constraints holding (sector test, no distance limit; or of the
+    paper's ten as listed with ``arrangement_reward='listed'``); terminates with success when all 6 hold.
     """
 
     config_class = ClevrConfig
@@ -86,6 +89,9 @@ class ClevrEnv(Env):
         if isinstance(config, ClevrConfig):
             if config.task not in TASK_KINDS:
                 raise ValueError(f"unknown task {config.task!r}; choose one of {', '.join(TASK_KINDS)}")
+            if config.arrangement_reward not in tasks.ARRANGEMENT_REWARDS:
+                valid = ", ".join(tasks.ARRANGEMENT_REWARDS)
+                raise ValueError(f"unknown arrangement_reward {config.arrangement_reward!r}; choose one of {valid}")
             if config.action_type not in ACTION_TYPES:
                 raise ValueError(f"unknown action_type {config.action_type!r}; choose one of {', '.join(ACTION_TYPES)}")
             if config.action_type == "collect" and config.task != "goal":
@@ -196,7 +202,10 @@ class ClevrEnv(Env):
             satisfied = tasks.arrangement_satisfied(ball_xy)
             success = jnp.all(satisfied)
             failure = jnp.bool_(False)
-            reward = jnp.sum(satisfied).astype(jnp.float32)
+            if self.config.arrangement_reward == "listed":
+                reward = jnp.sum(satisfied[jnp.asarray(tasks.ARRANGEMENT_LISTED)]).astype(jnp.float32)
+            else:
+                reward = jnp.sum(satisfied).astype(jnp.float32)
         else:
             distance = tasks.goal_distance(ball_xy, task.goal)
             success = tasks.goal_success(ball_xy, task.goal)

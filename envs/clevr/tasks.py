@@ -82,6 +82,12 @@ ARRANGEMENT_CONSTRAINTS = np.array(
 )
 
 
+# The paper lists ten constraints (Appendix D.1.3); several coincide: (4) = (5) = (9), (2) = (7), (6) = (10).
+# Index into ARRANGEMENT_CONSTRAINTS of each listed constraint, in the paper's order (1)..(10).
+ARRANGEMENT_LISTED = np.array([4, 2, 5, 3, 3, 0, 2, 1, 3, 0], np.int32)
+ARRANGEMENT_REWARDS: tuple[str, ...] = ("distinct", "listed")
+
+
 def relation_of(offset: jax.Array) -> jax.Array:
     """The relation index (0 front, 1 behind, 2 left, 3 right) whose sector holds ``offset`` = source - destination.
 

@@ -15,6 +15,7 @@ from envs.base import ActionSpec, Env, EnvConfig, State
 from envs.kitchen import tasks
 
 INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
+ALL_TASKS_REWARDS: tuple[str, ...] = ("new", "count")
 
 # Clip bounds of the servo targets (the original robot config's ``pos_bound``; note joint 6's [0, 3.8]).
 POS_LOW = np.array([-2.9, -1.8, -2.9, -3.1, -2.9, 0.0, -2.9, 0.0, 0.0], np.float32)
@@ -77,6 +78,10 @@ class KitchenConfig(EnvConfig):
     knob and is worth about as much as succeeding; goal-conditioned PPO, 573k steps, 3 seeds: top burner 0 -> 72 %,
     light switch 34 -> 100 %, bottom burner 38 -> 82 % with 'scripted'. TALAR's experiment commands use
     'scripted'."""
+    all_tasks_reward: str = "new"
+    """``kitchen-all``'s reward: 'new' (the sub-tasks completed for the first time at this step, each pays once, as
+    D4RL / Gymnasium-Robotics) or 'count' (the number of sub-tasks whose test passes at this step: the paper's
+    hierarchical-RL reward, Appendix D.1.3)."""
     arm_collisions: bool = False
     """Let the forearm, the wrist links and the hand collide with the range hood, the stove block and both wall
     cabinets (``ARM_COLLISION_PAIRS``; 16 primitive pairs). Off by default, as in the model TALAR's results
@@ -125,7 +130,8 @@ class KitchenEnv(Env):
 
     ``kitchen``: one sub-task per episode (uniform goal id), TALAR's ``prev_curr`` reward with the posture term
     (its target postures chosen by ``posture_targets``), terminates on success. ``kitchen-all``: all six; reward =
-    number of sub-tasks newly completed at this step (each pays once), terminates when all six are complete;
+    number of sub-tasks newly completed at this step (each pays once; ``all_tasks_reward='count'``: the number
+    complete at this step), terminates when all six are complete;
     ``metrics["success"]`` = all six complete. ``hinge_cabinet_task=True`` makes the hinge cabinet a seventh.
     ``goal_observation=True`` appends a one-hot of the sub-task (``kitchen``; ``kitchen-all`` has no goal part).
     """
@@ -142,6 +148,9 @@ class KitchenEnv(Env):
             if config.posture_targets not in tasks.POSTURE_TARGETS:
                 valid = ", ".join(tasks.POSTURE_TARGETS)
                 raise ValueError(f"unknown posture_targets {config.posture_targets!r}; choose one of {valid}")
+            if config.all_tasks_reward not in ALL_TASKS_REWARDS:
+                valid = ", ".join(ALL_TASKS_REWARDS)
+                raise ValueError(f"unknown all_tasks_reward {config.all_tasks_reward!r}; choose one of {valid}")
             if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
                 raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
         super().__init__(config, physics)
@@ -269,6 +278,8 @@ class KitchenEnv(Env):
         distance = tasks.task_distances(obs, self._num_tasks)
         if self.config.all_tasks:
             completed, reward = tasks.all_tasks_update(task.completed, distance)
+            if self.config.all_tasks_reward == "count":
+                reward = jnp.sum(distance < tasks.BONUS_THRESH).astype(jnp.float32)
             success = jnp.all(completed > 0.5).astype(jnp.float32)
         else:
             terms = tasks.single_task_reward(
