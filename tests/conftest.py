@@ -23,6 +23,22 @@ def clevr_run(tmp_path_factory):
     return out, summary
 
 
+@pytest.fixture(scope="session")
+def kitchen_run(tmp_path_factory):
+    """A finished two-seed ``--quick`` kitchen TALAR run with its deployment strip (shared by the experiment and HRL
+    tests): (folder, printed output)."""
+    import contextlib
+    import io
+
+    from experiments import kitchen
+
+    out = tmp_path_factory.mktemp("kitchen")
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        kitchen.main([*[a for a in QUICK if a != "--no-deployment-strip"], "--out", str(out)])
+    return out, printed.getvalue()
+
+
 def pytest_addoption(parser):
     parser.addoption("--all", action="store_true", default=False, help="also run tests marked slow")
 

@@ -61,9 +61,8 @@ def test_compare_quick_runs_baselines_on_shared_stages(clevr_run):
     assert "| One-hot |" in (out / "compare.md").read_text()
 
 
-def test_kitchen_quick_end_to_end(tmp_path, capsys):
-    kitchen.main([*[a for a in QUICK if a != "--no-deployment-strip"], "--out", str(tmp_path)])
-    printed = capsys.readouterr().out
+def test_kitchen_quick_end_to_end(kitchen_run):
+    tmp_path, printed = kitchen_run
     # The report's deployment strip: one learned episode per sub-task (or one line saying why there is none).
     assert (tmp_path / "talar" / "deployment.png").exists() or "deployment strip: not written" in printed
     _check_run(tmp_path, seeds=2, num_instructions=120, num_goals=6)

@@ -14,7 +14,6 @@ from experiments import hrl
 from talar_jax.hrl import HighLevelEnv, talar_action_spec, task_language_code
 from talar_jax.networks import FactorisedCategorical, make_distribution
 from talar_jax.task_language import TaskLanguageSpec
-from tests.conftest import TINY_BERT
 
 
 def test_factorised_distribution_matches_per_head_reference():
@@ -85,29 +84,12 @@ def test_high_level_step_holds_the_low_level_policy_and_sums_its_rewards():
 
 
 @pytest.mark.parametrize("env_name", ["clevr", "kitchen"])
-def test_hrl_command_quick_end_to_end(env_name, clevr_run, tmp_path, capsys):
-    if env_name == "clevr":
-        run_dir, methods = clevr_run[0], ["talar", "hal", "flat"]
-    else:  # the kitchen's own quick TALAR run is made by the command (one method: the wiring is shared)
-        run_dir, methods = tmp_path / "low-level", ["talar"]
+def test_hrl_command_quick_end_to_end(env_name, request, tmp_path, capsys):
+    # the low level: the quick TALAR runs the experiment tests share (kitchen: one method, the wiring is shared)
+    run_dir = request.getfixturevalue(f"{env_name}_run")[0]
+    methods = ["talar", "hal", "flat"] if env_name == "clevr" else ["talar"]
     args = ["--env", env_name, "--quick", "--seeds", "2", "--out", str(tmp_path / "hrl"), "--run-dir", str(run_dir)]
     args += ["--methods", *methods, "--episode-length", "2", "--env-steps", "5120", "--no-progress"]
-    if env_name == "kitchen":
-        from experiments import kitchen
-
-        kitchen.main(
-            [
-                "--quick",
-                "--seeds",
-                "1",
-                "--no-progress",
-                "--no-deployment-strip",
-                "--encoder",
-                TINY_BERT,
-                "--out",
-                str(run_dir),
-            ]
-        )
     summary = hrl.main(args)
     assert set(summary["methods"]) == set(methods) and summary["hold"] == 10
     for method in methods:
