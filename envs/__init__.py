@@ -6,7 +6,7 @@ kinematic chains otherwise compile into exponentially slow code); the project's 
 
 from envs.base import ActionSpec, Env, EnvConfig, State
 from envs.physics import PHYSICS_BACKENDS, CPhysics, MjxPhysics, Physics, PhysicsState, default_backend, make_physics
-from envs.registry import get_default_config, make, register_environment, registered_names
+from envs.registry import get_default_config, make, model_fingerprint, register_environment, registered_names
 from envs.wrappers import (
     AutoResetWrapper,
     EpisodeWrapper,
@@ -54,6 +54,7 @@ __all__ = [
     "get_default_config",
     "make",
     "make_physics",
+    "model_fingerprint",
     "register_environment",
     "to_gymnasium",
     "to_gymnasium_vector",

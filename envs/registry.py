@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import hashlib
 from typing import Any
 
 from envs.base import Env, EnvConfig, replace_config
@@ -32,6 +34,14 @@ def get_default_config(name: str) -> EnvConfig:
     """The resolved default config of a registered env (a frozen dataclass)."""
     env_class, overrides = _lookup(name)
     return replace_config(env_class.config_class(), overrides)
+
+
+@functools.cache
+def model_fingerprint(name: str) -> str:
+    """A short sha256 of the MJCF file a registered env compiles. Caches of results made on an env (task datasets,
+    policies) put it in their keys, so that editing a model invalidates what was made with the old one."""
+    env_class, _ = _lookup(name)
+    return hashlib.sha256(env_class.xml_path.read_bytes()).hexdigest()[:16]
 
 
 def make(name: str, *, physics: str = "mjx", **overrides: Any) -> Env:

@@ -191,7 +191,8 @@ def _oracle_args(config: ExperimentConfig, out: Path) -> OracleArgs:
 
 def stage_oracle(config: ExperimentConfig) -> StageResult:
     """Goal-conditioned oracle and the task dataset (``experiments.oracle``), shared by every method."""
-    key = stable_hash("oracle", dataclasses.replace(_oracle_args(config, Path()), progress=True))
+    args = dataclasses.replace(_oracle_args(config, Path()), progress=True)
+    key = stable_hash("oracle", args, envs.model_fingerprint(config.env))
 
     def body(stage_dir: Path) -> dict[str, Any]:
         success = run_oracle(_oracle_args(config, stage_dir))
@@ -206,9 +207,10 @@ def run_name(config: ExperimentConfig) -> str:
 
 
 def ifp_key(config: ExperimentConfig, method_key: str) -> str:
-    """The IFP stage's key: the method's upstream key and every resolved field but ``KEY_EXCLUDED_FIELDS``."""
+    """The IFP stage's key: the method's upstream key, every resolved field but ``KEY_EXCLUDED_FIELDS`` and the env's
+    model (``envs.model_fingerprint``)."""
     fields = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name not in KEY_EXCLUDED_FIELDS}
-    return stable_hash("ifp", method_key, fields)
+    return stable_hash("ifp", method_key, fields, envs.model_fingerprint(config.env))
 
 
 def stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: str) -> dict[str, str]:

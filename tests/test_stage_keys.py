@@ -110,3 +110,20 @@ def test_bert_encoding_size_reaches_the_ifp_key():
     # ... and an RG-only setting, which BERT-binary does not read, leaves its encoding key alone
     hotter = dataclasses.replace(base, talar=dataclasses.replace(base.talar, gumbel_temperature=8.0))
     assert _keys(base)["bert-binary"] == _keys(hotter)["bert-binary"]
+
+
+def test_editing_an_env_model_reruns_the_oracle_and_the_policy(monkeypatch, tmp_path):
+    import envs
+    from experiments.pipeline import stage_oracle
+
+    config = resolve(default_config("kitchen", physics="c", out=tmp_path))
+    seen = {}
+    monkeypatch.setattr("experiments.pipeline.run_stage", lambda run_dir, name, key, body: seen.setdefault(name, key))
+    stage_oracle(config)
+    reference_ifp = stage_keys(config, UPSTREAM, CACHE)["ifp"]
+    monkeypatch.setattr(envs, "model_fingerprint", lambda name: "an-edited-model")
+    seen_before = dict(seen)
+    seen.clear()
+    stage_oracle(config)
+    assert seen["oracle"] != seen_before["oracle"]
+    assert stage_keys(config, UPSTREAM, CACHE)["ifp"] != reference_ifp
