@@ -498,3 +498,15 @@ def test_a_third_env_registers_how_its_instructions_are_read(tmp_path):
         instructions_module._FORMATS.pop("toy")
     with pytest.raises(ValueError, match="unknown env 'toy'"):
         load_instructions("toy", "train")
+
+
+@pytest.mark.parametrize("env", ["clevr", "kitchen"])
+def test_development_phrasings_are_new_and_never_train(env):
+    from talar_jax.language.instructions import DEVELOPMENT_FILE, load_user_instructions
+
+    sentences, goals = load_user_instructions(DEVELOPMENT_FILE, env)
+    normalise = lambda s: re.sub(r"[^a-z ]", "", s.lower()).split()  # noqa: E731
+    known = {tuple(normalise(s)) for s in load_instructions(env, "all").sentences}
+    assert not [s for s in sentences if tuple(normalise(s)) in known]  # differs from every train and test sentence
+    per_goal = np.bincount(goals, minlength=80 if env == "clevr" else 6)
+    assert per_goal.min() >= 5  # >= 5 CLEVR patterns (each filled for all 80 goals), >= 5 per kitchen sub-task

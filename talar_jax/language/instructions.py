@@ -22,6 +22,10 @@ from envs.clevr import tasks as clevr_tasks
 from envs.kitchen import tasks as kitchen_tasks
 
 INSTRUCTIONS_FILE = Path(__file__).parent / "data" / "instructions.json"
+DEVELOPMENT_FILE = Path(__file__).parent / "data" / "development.json"
+"""Our own development set of phrasings (new verbs, politeness, word order, synonyms), in the user-file format of
+``load_user_instructions``: it measures robustness to unseen phrasings (``experiments.generalize RUN --instructions
+talar_jax/language/data/development.json``) and never trains anything."""
 """Package copy of the instruction data (paper Appendix D.1)."""
 
 SPLITS: tuple[str, ...] = ("train", "test", "all")
