@@ -58,7 +58,7 @@ class PointEnv(Env):
         return len(GOALS)
 
     @property
-    def observation_size(self) -> int:
+    def state_observation_size(self) -> int:
         return 2
 
     def reset(self, rng: jax.Array) -> State:
