@@ -14,8 +14,6 @@ import argparse
 import functools
 import json
 import os
-import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -26,6 +24,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 from brax.training.agents.ppo import networks as ppo_networks  # noqa: E402
 from brax.training.agents.ppo import train as ppo  # noqa: E402
+from provenance import provenance  # noqa: E402  (examples/, on sys.path when run as a script)
 
 import envs  # noqa: E402
 
@@ -48,15 +47,6 @@ def evaluate(env, policy, episodes: int, seed: int) -> float:
 
     keys = jax.random.split(jax.random.key(seed), episodes)
     return float(jnp.mean(jax.jit(jax.vmap(episode))(keys)))
-
-
-def git_commit() -> str | None:
-    """The checkout's commit (None outside a git checkout)."""
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return out.stdout.strip()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,8 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         "train_seconds": round(train_seconds, 1),
         "final_success_deterministic_2000_episodes": success,
         "curve": curve,
-        "command": "python " + shlex.join(sys.argv),
-        "commit": git_commit(),
+        **provenance(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=2) + "\n")

@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
 
 import numpy as np  # noqa: E402
+from provenance import provenance  # noqa: E402  (examples/, on sys.path when run as a script)
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
 from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
@@ -106,15 +105,6 @@ class EpisodeLog(BaseCallback):
         return True
 
 
-def git_commit() -> str | None:
-    """The checkout's commit (None outside a git checkout)."""
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return out.stdout.strip()
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="slide cabinet", choices=tasks.ALL_TASK_NAMES)
@@ -146,8 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "train_seconds": round(time.perf_counter() - start, 1),
         "windows": log.windows,
-        "command": "python " + shlex.join(sys.argv),
-        "commit": git_commit(),
+        **provenance(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=2) + "\n")

@@ -168,13 +168,13 @@ def build(args: HRLArgs, method: str, run_folder: Path):
     options = dict(defaults.low_env_options)
     if args.env == "clevr":
         options["arrangement_reward"] = args.arrangement_reward
-    low_env = envs.make(defaults.low_env, physics=args.physics, **options)
     if method == "flat":
         low_env = SingleTaskWrapper(
             envs.make(defaults.low_env, physics=args.physics, episode_length=args.episode_length * args.hold, **options)
         )
         config = dataclasses.replace(high_level_ppo(args, args.env_steps), num_envs=64, rollout_length=16)
         return low_env, config, 1
+    low_env = envs.make(defaults.low_env, physics=args.physics, **options)
     agent = load(run_folder, seed=args.ifp_seed, physics=args.physics)
     if method == "talar":
         spec = TaskLanguageSpec(**agent.config["talar"]["spec"])
