@@ -28,7 +28,15 @@ from talar_jax.baselines import (
 from talar_jax.checkpoint import load_tree, save_tree
 from talar_jax.conditioning import Conditioner, InstructionTableConditioner
 from talar_jax.dataset import TaskDataset
-from talar_jax.language import EmbeddingCache, load_instructions
+from talar_jax.language import (
+    DEVELOPMENT_FILE,
+    EmbeddingCache,
+    cached_sentence_features,
+    load_encoder,
+    load_instructions,
+    load_user_instructions,
+    paraphrase_variants,
+)
 from talar_jax.optim import fit_seeds
 from talar_jax.sharding import shard_seeds
 from talar_jax.stages import StageResult, run_stage, stable_hash
@@ -39,6 +47,7 @@ from talar_jax.talar import (
     make_train_translator,
     make_translate,
     task_language_quality,
+    with_paraphrases,
 )
 from talar_jax.task_language import TaskLanguageSpec
 
@@ -182,7 +191,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
             fit,
             ctx.seed_keys(name),
             targets,
-            data,
+            paraphrased_data(ctx),
             in_axes=(0, None),
             label=name,
             progress=config.progress,
@@ -201,6 +210,34 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
         }
 
     return run_stage(config.out, name, key, body)
+
+
+def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
+    """The translator's data: ``ctx.data``, plus ``config.talar.translator_paraphrases`` paraphrases of each training
+    instruction the task dataset uses (never a test sentence), encoded once like the cache's own sentences."""
+    config, cache, data = ctx.config, ctx.cache, ctx.data
+    count = config.talar.translator_paraphrases
+    if not count:
+        return data
+    rows = np.asarray(data.dataset_sentences)
+    if not cache.is_train[rows].all():
+        raise ValueError("the task dataset uses test instructions; paraphrases are made from training ones only")
+    held_out = [s for s, train in zip(cache.sentences, cache.is_train) if not train]
+    try:
+        held_out += load_user_instructions(DEVELOPMENT_FILE, config.env)[0]
+    except ValueError:  # an env without development phrasings
+        pass
+    variants = paraphrase_variants(
+        [cache.sentences[r] for r in rows],
+        cache.goal_ids[rows],
+        count,
+        seed=config.talar.paraphrase_seed,
+        exclude=held_out,
+    )
+    sentences = [v for per_sentence in variants for v in per_sentence]
+    encoder = load_encoder(config.encoder)
+    features = cached_sentence_features(encoder, sentences, config.sentence_readout, progress=config.progress)
+    return with_paraphrases(data, features, np.repeat(rows, count))
 
 
 def setup_talar(ctx: MethodContext) -> MethodSetup:

@@ -60,6 +60,13 @@ class TalarConfig:
     tuple) instead of one sampled token per tuple: same objective, lower-variance gradient."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
+    translator_paraphrases: int = 0
+    """Paraphrases per training instruction the translator also learns from (``talar_jax.language.augment``: edits
+    of function words, word order and splices of same-goal training sentences; 0: the paper's translator)."""
+    paraphrase_probability: float = 0.5
+    """Chance that a translator batch row reads one of its instruction's paraphrases instead of the instruction."""
+    paraphrase_seed: int = 0
+    """Seed of the paraphrases (the same seed gives the same sentences)."""
 
     @property
     def referential_batch_size(self) -> int:
@@ -86,12 +93,26 @@ class TalarConfig:
             "translator_learning_rate": self.translator_learning_rate,
             "batch_size": self.batch_size,
             "translator_steps": self.translator_steps,
+            **(
+                {
+                    "translator_paraphrases": self.translator_paraphrases,
+                    "paraphrase_probability": self.paraphrase_probability,
+                    "paraphrase_seed": self.paraphrase_seed,
+                }
+                if self.translator_paraphrases
+                else {}
+            ),
         }
 
     def __post_init__(self):
         for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.translator_paraphrases < 0 or not 0.0 <= self.paraphrase_probability <= 1.0:
+            raise ValueError(
+                "TalarConfig.translator_paraphrases must be >= 0 and paraphrase_probability in [0, 1], got "
+                f"{self.translator_paraphrases}, {self.paraphrase_probability}"
+            )
 
 
 class TaskLanguageData(NamedTuple):
@@ -110,6 +131,8 @@ class TaskLanguageData(NamedTuple):
         tuple_sentence: (N,) row of each tuple's instruction in ``dataset_sentences``.
         prefix_table: (Q, D) the distinct prefix embeddings of the ``dataset_sentences``.
         prefix_table_index: (P,) row of each prefix in ``prefix_table`` (0 for prefixes of unused sentences).
+        sentence_variants: None, or (S, K) rows of ``sentence_embeddings`` holding K paraphrases of each sentence
+            (``with_paraphrases``; a sentence without paraphrases lists its own row), read by the translator only.
 
     The last four let a step compute a layer once per distinct sentence or prefix instead of once per sampled
     row when that is fewer rows (the kitchen's 60 training instructions against 256-tuple batches): the same
@@ -128,6 +151,7 @@ class TaskLanguageData(NamedTuple):
     tuple_sentence: jax.Array
     prefix_table: jax.Array
     prefix_table_index: jax.Array
+    sentence_variants: jax.Array | None = None
 
 
 def make_task_language_data(dataset: Any, cache: Any, readout: str = "sentence") -> TaskLanguageData:
@@ -298,7 +322,14 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
 
     def loss_fn(params, rng_step, targets: jax.Array, data: TaskLanguageData):
         rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
-        if data.dataset_sentences.shape[0] < config.batch_size:  # fewer sentences than tuples: one pass per sentence
+        if data.sentence_variants is not None:  # some rows read a paraphrase of their instruction
+            rng_pick, rng_use = jax.random.split(jax.random.fold_in(rng_step, 1))
+            sentences = data.sentence_ids[rows]
+            pick = jax.random.randint(rng_pick, rows.shape, 0, data.sentence_variants.shape[1])
+            use = jax.random.uniform(rng_use, rows.shape) < config.paraphrase_probability
+            sentences = jnp.where(use, data.sentence_variants[sentences, pick], sentences)
+            logits = translator.apply(params, data.sentence_embeddings[sentences])
+        elif data.dataset_sentences.shape[0] < config.batch_size:  # fewer sentences than tuples: one pass per sentence
             per_sentence = translator.apply(params, data.sentence_embeddings[data.dataset_sentences])
             logits = per_sentence[data.tuple_sentence[rows]]
         else:
@@ -306,6 +337,24 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
         return translator_loss(spec, logits, jax.lax.stop_gradient(targets[rows]))
 
     return AdamFit(init_params, loss_fn, config.translator_learning_rate, config.translator_steps)
+
+
+def with_paraphrases(data: TaskLanguageData, features: np.ndarray, sources: np.ndarray) -> TaskLanguageData:
+    """``data`` whose translator also reads paraphrases: ``features`` (A, F) of A paraphrases, ``sources`` (A,) the
+    sentence row each paraphrases (every source the same number K of times). Appends the features after the
+    sentences' own and fills ``sentence_variants``; rows of ``sentence_embeddings`` below S keep their meaning."""
+    sources = np.asarray(sources, np.int64)
+    num_sentences = data.sentence_embeddings.shape[0]
+    variants = np.repeat(np.arange(num_sentences)[:, None], 1, axis=1)
+    if len(sources):
+        distinct, counts = np.unique(sources, return_counts=True)
+        if len(set(counts.tolist())) != 1:
+            raise ValueError("with_paraphrases: every source sentence needs the same number of paraphrases")
+        variants = np.repeat(variants, counts[0], axis=1)
+        order = np.argsort(sources, kind="stable")
+        variants[distinct] = (num_sentences + order).reshape(len(distinct), counts[0])
+    embeddings = jnp.concatenate([data.sentence_embeddings, jnp.asarray(features, jnp.float32)])
+    return data._replace(sentence_embeddings=embeddings, sentence_variants=jnp.asarray(variants, jnp.int32))
 
 
 def make_translate(config: TalarConfig, spec: TaskLanguageSpec | None = None):

@@ -510,3 +510,91 @@ def test_development_phrasings_are_new_and_never_train(env):
     assert not [s for s in sentences if tuple(normalise(s)) in known]  # differs from every train and test sentence
     per_goal = np.bincount(goals, minlength=80 if env == "clevr" else 6)
     assert per_goal.min() >= 5  # >= 5 CLEVR patterns (each filled for all 80 goals), >= 5 per kitchen sub-task
+
+
+def _content(sentence: str, function: set[str]) -> list[str]:
+    from talar_jax.language.augment import words
+
+    return sorted(w for w in words(sentence) if w[0].isalnum() and w not in function)
+
+
+def test_paraphrases_are_deterministic_and_keep_every_content_word():
+    from talar_jax.language import paraphrase_variants
+    from talar_jax.language.augment import function_words
+
+    train = load_instructions("clevr", "train")
+    sentences, goals = list(train.sentences[:160]), train.goal_ids[:160]
+    first = paraphrase_variants(sentences, goals, 6, seed=3)
+    assert first == paraphrase_variants(sentences, goals, 6, seed=3)
+    assert first != paraphrase_variants(sentences, goals, 6, seed=4)
+    function = function_words(sentences, goals)
+    assert {"red", "blue", "left", "front"}.isdisjoint(function) and {"the", "push"} <= function
+    changed = 0
+    for source, variants in zip(sentences, first, strict=True):
+        assert len(variants) == 6
+        for variant in variants:
+            # colours and relation words survive every edit: the variant still names the source's goal
+            assert _content(variant, function) == _content(source, function), (source, variant)
+            changed += variant != source
+    assert changed > 0.8 * 6 * len(sentences)
+
+
+@pytest.mark.parametrize("env", ["clevr", "kitchen"])
+def test_paraphrases_never_rebuild_a_test_or_development_sentence(env):
+    from talar_jax.language import DEVELOPMENT_FILE, load_user_instructions, paraphrase_variants
+    from talar_jax.language.augment import words
+
+    train, test = load_instructions(env, "train"), load_instructions(env, "test")
+    held_out = list(test.sentences) + load_user_instructions(DEVELOPMENT_FILE, env)[0]
+    key = lambda s: tuple(w for w in words(s) if w[0].isalnum())  # noqa: E731
+    held_keys = {key(s) for s in held_out}
+    guarded = paraphrase_variants(train.sentences, train.goal_ids, 8, seed=0, exclude=held_out)
+    assert not [v for vs in guarded for v in vs if key(v) in held_keys]
+    if env == "clevr":  # the guard matters: unguarded edits of training words rebuild test patterns ("was pushed")
+        free = paraphrase_variants(train.sentences, train.goal_ids, 8, seed=0)
+        assert [v for vs in free for v in vs if key(v) in held_keys]
+
+
+def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(monkeypatch, tmp_path):
+    import dataclasses
+    import types
+
+    from experiments import methods
+    from experiments.pipeline import default_config, resolve
+    from talar_jax.talar import make_task_language_data
+    from tests.conftest import TINY_BERT
+
+    cache_dir = tmp_path / "features"
+    cache = build_cache("kitchen", TINY_BERT, progress=False)
+    train_rows = np.flatnonzero(cache.is_train)[::7]
+    dataset = types.SimpleNamespace(
+        states=np.zeros((len(train_rows), 30), np.float32),
+        final_states=np.ones((len(train_rows), 30), np.float32),
+        instruction_ids=train_rows.astype(np.int32),
+    )
+    config = resolve(default_config("kitchen", encoder=TINY_BERT, seeds=1, progress=False))
+    config = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=3))
+    data = make_task_language_data(dataset, cache, config.sentence_readout)
+    encoded, real = [], methods.cached_sentence_features
+
+    def recording(encoder, sentences, *args, **kwargs):
+        encoded.extend(sentences)
+        return real(encoder, sentences, *args, cache_dir=cache_dir, **kwargs)
+
+    monkeypatch.setattr(methods, "cached_sentence_features", recording)
+    ctx = methods.MethodContext(config, "", data, cache, dataset, None)
+    augmented = methods.paraphrased_data(ctx)
+    num_sentences = len(cache.sentences)
+    assert len(encoded) == 3 * len(train_rows)
+    assert augmented.sentence_embeddings.shape[0] == num_sentences + 3 * len(train_rows)
+    np.testing.assert_array_equal(augmented.sentence_embeddings[:num_sentences], data.sentence_embeddings)
+    variants = np.asarray(augmented.sentence_variants)
+    for i, row in enumerate(train_rows):  # each dataset sentence -> its own three paraphrases, in order
+        np.testing.assert_array_equal(variants[row], num_sentences + 3 * i + np.arange(3))
+    others = np.setdiff1d(np.arange(num_sentences), train_rows)
+    np.testing.assert_array_equal(variants[others], np.repeat(others[:, None], 3, 1))
+    held = {s.lower() for s, train in zip(cache.sentences, cache.is_train) if not train}
+    assert not {s.lower() for s in encoded} & held
+    # without paraphrases the translator reads the data unchanged (the paper's translator)
+    plain = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=0))
+    assert methods.paraphrased_data(dataclasses.replace(ctx, config=plain)) is data

@@ -1,15 +1,18 @@
 """Language layer: instruction sets, a flax BERT encoder for Hugging Face BERT folders, and the embedding cache."""
 
+from talar_jax.language.augment import paraphrase_variants
 from talar_jax.language.bert import BertConfig, BertModel, mean_pool
 from talar_jax.language.cache import (
     SENTENCE_READOUTS,
     EmbeddingCache,
     build_cache,
+    cached_sentence_features,
     default_cache_dir,
     sentence_features,
 )
 from talar_jax.language.encoder import BertEncoder, EncoderError, default_encoder_path, load_encoder
 from talar_jax.language.instructions import (
+    DEVELOPMENT_FILE,
     InstructionFormat,
     InstructionSet,
     load_instructions,
@@ -18,6 +21,7 @@ from talar_jax.language.instructions import (
 )
 
 __all__ = [
+    "DEVELOPMENT_FILE",
     "SENTENCE_READOUTS",
     "BertConfig",
     "BertEncoder",
@@ -27,12 +31,14 @@ __all__ = [
     "InstructionFormat",
     "InstructionSet",
     "build_cache",
+    "cached_sentence_features",
     "default_cache_dir",
     "default_encoder_path",
     "load_encoder",
     "load_instructions",
     "load_user_instructions",
     "mean_pool",
+    "paraphrase_variants",
     "register_instruction_format",
     "sentence_features",
 ]

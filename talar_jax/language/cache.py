@@ -168,7 +168,12 @@ class EmbeddingCache:
 
 
 def sentence_features(
-    encoder: BertEncoder, sentences: Sequence[str], readout: str = "sentence", batch_size: int = 256
+    encoder: BertEncoder,
+    sentences: Sequence[str],
+    readout: str = "sentence",
+    batch_size: int = 256,
+    progress: bool = False,
+    description: str = "sentence features",
 ) -> np.ndarray:
     """(S, F) features of any sentences, computed as ``EmbeddingCache.sentence_features(readout)`` computes them for
     the cached ones (the pooled embedding; with ``"sentence+prefixes"`` also the mean of the prefix embeddings).
@@ -184,13 +189,46 @@ def sentence_features(
             raise ValueError(f"sentence {sentence!r} has no words the encoder {encoder.name} can read")
     full = [encoder.with_specials(tokens) for tokens in pieces]
     if readout == "sentence":
-        return encoder.embed_sequences(full, batch_size=batch_size)
-    prefixes = [encoder.with_specials(tokens[:i]) for tokens in pieces for i in range(len(tokens))]
-    embeddings = encoder.embed_sequences(full + prefixes, batch_size=batch_size)
-    counts = np.array([len(tokens) for tokens in pieces])
-    starts = len(full) + np.cumsum(counts) - counts
-    means = np.stack([embeddings[start : start + count].mean(0) for start, count in zip(starts, counts)])
+        return encoder.embed_sequences(full, batch_size=batch_size, progress=progress, description=description)
+    distinct: dict[tuple[int, ...], int] = {}  # sentences sharing a beginning share its prefixes: embed each once
+    prefix_rows = [
+        [distinct.setdefault(tuple(tokens[:i]), len(distinct)) for i in range(len(tokens))] for tokens in pieces
+    ]
+    sequences = full + [encoder.with_specials(list(prefix)) for prefix in distinct]
+    embeddings = encoder.embed_sequences(sequences, batch_size=batch_size, progress=progress, description=description)
+    prefixes = embeddings[len(full) :]
+    means = np.stack([prefixes[rows].mean(0) for rows in prefix_rows])
     return np.concatenate([embeddings[: len(full)], means], axis=1).astype(np.float32)
+
+
+def cached_sentence_features(
+    encoder: BertEncoder,
+    sentences: Sequence[str],
+    readout: str = "sentence",
+    cache_dir: str | os.PathLike | None = None,
+    progress: bool = False,
+) -> np.ndarray:
+    """``sentence_features`` stored once per (encoder, readout, sentences) in the language cache folder (for sentence
+    sets outside an env's instruction file, such as a translator's paraphrases); written atomically."""
+    payload = json.dumps([CACHE_FORMAT, encoder.cache_key, readout, list(sentences)])
+    key = hashlib.sha256(payload.encode()).hexdigest()
+    directory = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    path = directory / f"features-{re.sub(r'[^A-Za-z0-9_.-]+', '_', encoder.name)}-{key[:24]}.npy"
+    if path.is_file():
+        try:
+            features = np.load(path, allow_pickle=False)
+            if features.shape[0] == len(sentences):
+                return features
+        except (OSError, ValueError, EOFError):
+            pass
+    features = sentence_features(encoder, sentences, readout, progress=progress, description="paraphrase features")
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=directory, prefix=f".{path.name}.", suffix=".tmp", delete=False) as handle:
+        np.save(handle, features)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(handle.name, path)
+    return features
 
 
 def default_cache_dir() -> Path:

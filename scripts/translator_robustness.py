@@ -1,0 +1,123 @@
+"""Translators with and without paraphrase augmentation, trained on a finished run's referential game, compared by
+TL agreement on the training, test and development instructions (issue: instructions phrased in ways no one trained
+on). No policy is trained: agreement is what the translator contributes.
+
+    python scripts/translator_robustness.py runs/kitchen-4M --env kitchen --paraphrases 0 8 16 --json out.json
+
+RUN is an experiment folder with ``oracle/dataset`` and ``talar/task_language/params.msgpack``; the run is assumed to
+use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``.
+For every ``--paraphrases`` value (0: the paper's translator) it trains one translator per seed of the run from the
+same seed keys and prints agreement per seed and mean ± std.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+import zlib
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from experiments.methods import MethodContext, paraphrased_data
+from experiments.pipeline import default_config, make_task_language_data, resolve
+from talar_jax.checkpoint import load_tree
+from talar_jax.dataset import TaskDataset
+from talar_jax.language import (
+    DEVELOPMENT_FILE,
+    build_cache,
+    cached_sentence_features,
+    load_encoder,
+    load_instructions,
+    load_user_instructions,
+)
+from talar_jax.optim import fit_seeds
+from talar_jax.talar import make_generate_task_language, make_train_translator, make_translate
+
+
+def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.ndarray]) -> float:
+    return float(np.mean([np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--env", required=True, choices=["clevr", "kitchen"])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--paraphrases", type=int, nargs="+", default=[0, 8])
+    parser.add_argument("--probability", type=float, default=0.5)
+    parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
+    parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+
+    config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
+    if args.steps:
+        config = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_steps=args.steps))
+    cache = build_cache(config.env, config.encoder, progress=False)
+    dataset = TaskDataset.load(args.run / "oracle" / "dataset")
+    data = make_task_language_data(dataset, cache, config.sentence_readout)
+    generator = load_tree(args.run / "talar" / "task_language" / "params.msgpack")["generator"]
+    generate = jax.jit(jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None)))
+    targets = jnp.asarray(generate(generator, data.states, data.final_states), jnp.float32)
+
+    features = cache.sentence_features(config.sentence_readout)
+    train_rows = load_instructions(config.env, "train").sentence_ids
+    test_rows = load_instructions(config.env, "test").sentence_ids
+    dev_sentences, dev_goals = load_user_instructions(args.development, config.env)
+    dev_features = cached_sentence_features(load_encoder(config.encoder), dev_sentences, config.sentence_readout)
+    sets = {
+        "train": (features[train_rows], cache.goal_ids[train_rows]),
+        "test": (features[test_rows], cache.goal_ids[test_rows]),
+        "development": (dev_features, np.asarray(dev_goals)),
+    }
+    key = jax.random.fold_in(jax.random.PRNGKey(config.seed), zlib.crc32(b"talar/translator"))
+    seed_keys = jax.random.split(key, args.seeds)
+    results = {}
+    for count in args.paraphrases:
+        talar = dataclasses.replace(config.talar, translator_paraphrases=count, paraphrase_probability=args.probability)
+        variant = dataclasses.replace(config, talar=talar)
+        ctx = MethodContext(variant, "", data, cache, dataset, None)
+        start = time.perf_counter()
+        train_data = paraphrased_data(ctx)
+        encode_s = time.perf_counter() - start
+        params, _ = fit_seeds(
+            make_train_translator(talar), seed_keys, targets, train_data, in_axes=(0, None), progress=False
+        )
+        translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
+        per_seed = {name: [] for name in sets}
+        for seed in range(args.seeds):
+            seed_params = jax.tree.map(lambda x: x[seed : seed + 1], params)
+            train_codes = np.asarray(translate(seed_params, sets["train"][0]))[0].round()
+            goal_codes = {}
+            for goal in np.unique(sets["train"][1]):
+                rows, counts = np.unique(train_codes[sets["train"][1] == goal], axis=0, return_counts=True)
+                goal_codes[int(goal)] = rows[np.argmax(counts)]
+            for name, (x, goals) in sets.items():
+                codes = np.asarray(translate(seed_params, x))[0].round()
+                per_seed[name].append(agreement(codes, goals, goal_codes))
+        results[count] = {"per_seed": per_seed, "encode_s": encode_s, "total_s": time.perf_counter() - start}
+        line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
+        print(f"paraphrases {count}: {line}  ({results[count]['total_s']:.0f} s)", flush=True)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(
+            json.dumps(
+                {
+                    "run": str(args.run),
+                    "env": args.env,
+                    "probability": args.probability,
+                    "translator_steps": config.talar.translator_steps,
+                    "results": results,
+                },
+                indent=2,
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,141 @@
+"""Paraphrase augmentation of training instructions for the translator, built from the training sentences alone.
+
+The translator sees few distinct sentences (CLEVR: 720, kitchen: 60) and learns to map exactly those embeddings to a
+task-language code; a phrasing it never saw (a polite request, a question, another word order) lands elsewhere in
+embedding space and may translate to another code. ``paraphrase_variants`` makes new sentences that keep a training
+sentence's meaning, using only the words of the training set:
+
+* *function words* are the words that occur in the sentences of most goals (``function_fraction``): "please", "can",
+  "you", "the", "is"; every other word (a colour, a relation, "microwave") is a *content word* and is never dropped,
+  inserted or substituted, so a variant names the same goal as its source;
+* each variant applies 1 to ``max_edits`` random edits: drop a function word, insert a function word, substitute a
+  function word by another one seen in the same context (same left or right neighbour), swap two adjacent words, or
+  splice the sentence with another training sentence of the same goal at a content word they share (the first part
+  of one, the rest of the other: "Is there any" + "red ball is pushed behind the blue ball.").
+
+Everything is a pure function of (sentences, goal ids, seed, excluded sentences): the same seed gives the same
+variants. Test and development sentences never serve as material: the caller passes the training sentences only, and
+the held-out ones only as ``exclude``, so that no variant happens to equal one (``tests/test_language.py``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections import defaultdict
+from collections.abc import Sequence
+
+import numpy as np
+
+_WORD = re.compile(r"\w+(?:'\w+)?|[^\w\s]")
+EDITS: tuple[str, ...] = ("drop", "insert", "substitute", "swap", "splice")
+
+
+def words(sentence: str) -> list[str]:
+    """The sentence split into lower-case words and punctuation marks."""
+    return [w.lower() for w in _WORD.findall(sentence)]
+
+
+def join_words(tokens: Sequence[str]) -> str:
+    """Words back to a sentence (no space before punctuation; the first letter capitalised)."""
+    text = ""
+    for token in tokens:
+        text += token if (not text or not token[0].isalnum() and token not in "(\"'") else " " + token
+    return text[:1].upper() + text[1:]
+
+
+def function_words(sentences: Sequence[str], goal_ids: Sequence[int], function_fraction: float = 0.5) -> set[str]:
+    """Words (not punctuation) that occur in the sentences of more than ``function_fraction`` of the goals."""
+    goals_of: dict[str, set[int]] = defaultdict(set)
+    for sentence, goal in zip(sentences, goal_ids, strict=True):
+        for word in words(sentence):
+            goals_of[word].add(int(goal))
+    num_goals = len(set(int(g) for g in goal_ids))
+    return {w for w, goals in goals_of.items() if w[0].isalnum() and len(goals) > function_fraction * num_goals}
+
+
+def paraphrase_variants(
+    sentences: Sequence[str],
+    goal_ids: Sequence[int],
+    num_variants: int,
+    seed: int = 0,
+    max_edits: int = 3,
+    function_fraction: float = 0.5,
+    exclude: Sequence[str] = (),
+) -> list[list[str]]:
+    """``num_variants`` paraphrases of each training sentence (see the module docstring).
+
+    Args:
+        sentences: the training sentences (and only those).
+        goal_ids: goal of each sentence (splices join sentences of the same goal only).
+        num_variants: variants per sentence.
+        seed: the augmentation's seed.
+        max_edits: most edits per variant (each variant makes 1 to ``max_edits``).
+        function_fraction: a word in the sentences of more than this fraction of goals is a function word.
+        exclude: held-out sentences (test, development) no variant may equal, compared word by word: edits of
+            training words can rebuild a test phrasing ("was moved" -> "was pushed"), which would then no longer be
+            unseen. Such a variant is drawn again (up to 20 times; then the source sentence is used).
+
+    Returns:
+        One list of ``num_variants`` sentences per input sentence (a variant may repeat its source when no edit
+        applies, e.g. a one-word sentence).
+    """
+    if num_variants < 0 or max_edits < 1:
+        raise ValueError(f"num_variants must be >= 0 and max_edits >= 1, got {num_variants}, {max_edits}")
+    tokenised = [words(s) for s in sentences]
+    goal_ids = [int(g) for g in goal_ids]
+    function = function_words(sentences, goal_ids, function_fraction)
+    function_list = sorted(function)
+    neighbours: dict[tuple[str, str], set[str]] = defaultdict(set)  # ("L", left word) / ("R", right word) -> words
+    for tokens in tokenised:
+        for i, word in enumerate(tokens):
+            if word in function:
+                neighbours["L", tokens[i - 1] if i else "^"].add(word)
+                neighbours["R", tokens[i + 1] if i + 1 < len(tokens) else "$"].add(word)
+    same_goal: dict[int, list[int]] = defaultdict(list)
+    for row, goal in enumerate(goal_ids):
+        same_goal[goal].append(row)
+
+    def edit(tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        kind = EDITS[rng.integers(len(EDITS))]
+        spots = [i for i, w in enumerate(tokens) if w in function]
+        if kind == "drop" and len(spots) > 1:
+            i = spots[rng.integers(len(spots))]
+            return tokens[:i] + tokens[i + 1 :]
+        if kind == "insert" and function_list:
+            i = int(rng.integers(len(tokens) + 1))
+            return tokens[:i] + [function_list[rng.integers(len(function_list))]] + tokens[i:]
+        if kind == "substitute" and spots:
+            i = spots[rng.integers(len(spots))]
+            left, right = tokens[i - 1] if i else "^", tokens[i + 1] if i + 1 < len(tokens) else "$"
+            options = sorted((neighbours["L", left] | neighbours["R", right]) - {tokens[i]})
+            if options:
+                return tokens[:i] + [options[rng.integers(len(options))]] + tokens[i + 1 :]
+        if kind == "swap" and len(tokens) > 2:
+            i = int(rng.integers(len(tokens) - 1))
+            if tokens[i][0].isalnum() and tokens[i + 1][0].isalnum():
+                return tokens[:i] + [tokens[i + 1], tokens[i]] + tokens[i + 2 :]
+        if kind == "splice":
+            other = tokenised[same_goal[goal_ids[row]][rng.integers(len(same_goal[goal_ids[row]]))]]
+            shared = [w for w in dict.fromkeys(tokens) if w[0].isalnum() and w not in function and w in other]
+            if shared:
+                word = shared[rng.integers(len(shared))]
+                return tokens[: tokens.index(word)] + other[other.index(word) :]
+        return tokens
+
+    held_out = {tuple(w for w in words(s) if w[0].isalnum()) for s in exclude}
+    variants = []
+    for row, tokens in enumerate(tokenised):
+        rng = np.random.default_rng([seed, row])
+        out = []
+        for _ in range(num_variants):
+            for _attempt in range(20):
+                current = list(tokens)
+                for _ in range(int(rng.integers(1, max_edits + 1))):
+                    current = edit(current, row, rng)
+                if tuple(w for w in current if w[0].isalnum()) not in held_out:
+                    break
+            else:
+                current = tokens
+            out.append(join_words(current))
+        variants.append(out)
+    return variants
