@@ -7,6 +7,7 @@ everything upstream, and per-seed instruction encodings for the t-SNE figure.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import zlib
 from collections.abc import Callable
@@ -223,10 +224,8 @@ def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
     if not cache.is_train[rows].all():
         raise ValueError("the task dataset uses test instructions; paraphrases are made from training ones only")
     held_out = [s for s, train in zip(cache.sentences, cache.is_train) if not train]
-    try:
+    with contextlib.suppress(ValueError):  # an env without development phrasings has none to keep out
         held_out += load_user_instructions(DEVELOPMENT_FILE, config.env)[0]
-    except ValueError:  # an env without development phrasings
-        pass
     variants = paraphrase_variants(
         [cache.sentences[r] for r in rows],
         cache.goal_ids[rows],

@@ -32,6 +32,7 @@ from talar_jax.dataset import TaskDataset
 from talar_jax.language import SENTENCE_READOUTS, EmbeddingCache, build_cache, load_encoder
 from talar_jax.logging import MultiLogger, TensorBoardLogger, TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
+from talar_jax.provenance import provenance
 from talar_jax.report import (
     GoalCurves,
     LearningCurve,
@@ -317,7 +318,12 @@ def write_report(
         table += per_goal_table(per_goal, names)
     (folder / "results.md").write_text(table)
     summary = {
+        "env": config.env,
         "method": config.method,
+        "seeds": config.seeds,
+        "ifp_env_steps_per_seed": int(curve.env_steps[-1]),
+        "num_patterns": config.num_patterns,
+        **provenance(),
         "final_success": {s: v.tolist() for s, v in final.items()},
         "final_success_per_goal": per_goal,
         "method_summary": setup.summary,

@@ -18,8 +18,18 @@ from experiments.pipeline import CLI_CONFIG, ExperimentConfig, default_config, r
 from tests.conftest import QUICK, TINY_BERT
 
 
+def rows_steps(folder: Path) -> int:
+    """Env steps per seed at the IFP's last evaluation."""
+    rows = [json.loads(line) for line in (folder / "talar" / "ifp" / "ppo" / "metrics.jsonl").read_text().splitlines()]
+    return int([r for r in rows if "eval/train/success_per_seed" in r][-1]["train/env_steps"])
+
+
 def _check_run(folder: Path, seeds: int, num_instructions: int, num_goals: int, tl_size: int = 14):
     summary = json.loads((folder / "talar" / "summary.json").read_text())
+    # what budget a number had, readable without the folder name
+    assert summary["env"] in ("clevr", "kitchen") and summary["method"] == "talar" and summary["seeds"] == seeds
+    assert summary["ifp_env_steps_per_seed"] == rows_steps(folder) and summary["num_patterns"] is None
+    assert "commit" in summary and summary["command"].startswith("python ")
     for split in ("train", "test"):
         rates = np.asarray(summary["final_success"][split])
         assert rates.shape == (seeds,) and np.all((rates >= 0) & (rates <= 1))

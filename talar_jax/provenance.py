@@ -1,0 +1,31 @@
+"""Where a result came from: the command line and the checkout's commit, recorded in every summary.json."""
+
+from __future__ import annotations
+
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+
+def git_commit(folder: str | Path | None = None) -> str | None:
+    """The commit checked out in ``folder`` (default: this package's checkout), with ``-dirty`` when tracked files
+    differ from it; None outside a git checkout."""
+    cwd = Path(folder) if folder is not None else Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, check=True)
+        status = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=cwd,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return commit.stdout.strip() + ("-dirty" if status.stdout.strip() else "")
+
+
+def provenance() -> dict[str, str | None]:
+    """``{"command": ..., "commit": ...}`` of the running process."""
+    return {"command": "python " + shlex.join(sys.argv), "commit": git_commit()}
