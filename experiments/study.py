@@ -1,0 +1,198 @@
+"""The paper's appendix studies of one method's settings: ``python -m experiments.study NAME --env kitchen --seeds 5``.
+
+NAME is one of
+
+* ``ablation`` (paper Fig. 7, section 5.4): TALAR with N_pn in ``--predicates`` (2, 4, 6) x N_a in ``--arguments``
+  (2, 3, 4) predicate and argument networks; the paper finds larger better, N_pn = 6, N_a = 4 sufficient.
+* ``dataset-size`` (paper Fig. 13, Appendix E.4): TALAR with task datasets of ``--dataset-sizes`` tuples (10k, 25k,
+  50k); the paper finds 10k tuples already give 76 %+ on kitchen, above every baseline.
+
+Each setting is one experiment folder under ``--out`` (default ``runs/study-<name>-<env>``) with every stage cached,
+so an interrupted study resumes where it stopped. The ablation's settings share the first one's oracle and task
+dataset (a link to its ``oracle`` folder); dataset sizes collect their own. Writes ``study.png`` (final success per
+setting, train and test instructions, mean ± std over seeds), ``study.md`` and ``summary.json`` (env, method, IFP env
+steps per seed, seeds, command and commit beside every setting's final success per seed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import tyro  # noqa: E402
+
+from experiments.compare import env_option  # noqa: E402
+from experiments.pipeline import CLI_CONFIG, ExperimentConfig, check_inputs, default_config, run  # noqa: E402
+from experiments.recipes import recipe_names  # noqa: E402
+from talar_jax.checkpoint import write_json_atomic  # noqa: E402
+from talar_jax.provenance import provenance  # noqa: E402
+
+STUDIES: tuple[str, ...] = ("ablation", "dataset-size")
+
+PAPER = {
+    "ablation": "larger N_pn and N_a better on train and test; too large slows training; N_pn = 6, N_a = 4 sufficient "
+    "(Fig. 7, kitchen, 4M steps)",
+    "dataset-size": "10,000 tuples already give 76 %+ success, above every baseline (Fig. 13, kitchen)",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyArgs:
+    """Which study, over which settings, on the experiment settings every run shares."""
+
+    name: tyro.conf.Positional[Literal["ablation", "dataset-size"]]
+    """The study: ablation (Fig. 7) or dataset-size (Fig. 13)."""
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(env="kitchen")
+    """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
+    env's recipe; ``--out`` defaults to runs/study-<name>-<env>)."""
+    predicates: tuple[int, ...] = (2, 4, 6)
+    """ablation: numbers of predicate networks N_pn."""
+    arguments: tuple[int, ...] = (2, 3, 4)
+    """ablation: numbers of argument networks N_a."""
+    dataset_sizes: tuple[int, ...] = (10_000, 25_000, 50_000)
+    """dataset-size: task-dataset sizes (tuples)."""
+    ifp_env_steps: int | None = None
+    """IFP env steps per seed and setting (default: the env command's, the paper's budget)."""
+
+
+def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
+    """Label -> resolved experiment of every setting of the study (validated: one ValueError per bad input)."""
+    base = args.experiment
+    if base.method != "talar":
+        raise ValueError(f"the {args.name} study varies TALAR's task language; got --method {base.method}")
+    if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
+        raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
+    out = base.out if base.out is not None else Path(f"runs/study-{args.name}-{base.env}")
+    variants: dict[str, ExperimentConfig] = {}
+    if args.name == "ablation":
+        if not args.predicates or not args.arguments or min(args.predicates + args.arguments) < 1:
+            raise ValueError("--predicates and --arguments need positive counts")
+        talar = check_inputs(base).talar
+        for predicates in args.predicates:
+            for arguments in args.arguments:
+                spec = dataclasses.replace(talar.spec, num_predicates=predicates, num_arguments=arguments)
+                variant = dataclasses.replace(base, talar=dataclasses.replace(talar, spec=spec))
+                variants[f"npn{predicates}-na{arguments}"] = variant
+    else:
+        if not args.dataset_sizes or min(args.dataset_sizes) < 1:
+            raise ValueError("--dataset-sizes needs positive sizes")
+        for size in args.dataset_sizes:
+            variants[f"tuples{size}"] = dataclasses.replace(base, num_tuples=size)
+    resolved = {}
+    for label, variant in variants.items():
+        config = check_inputs(dataclasses.replace(variant, out=out / label))
+        if args.ifp_env_steps is not None:
+            config = dataclasses.replace(
+                config, ifp=dataclasses.replace(config.ifp, total_env_steps=args.ifp_env_steps)
+            )
+        resolved[label] = config
+    return resolved
+
+
+def share_oracle(first: Path, target: Path) -> None:
+    """Links ``target/oracle`` to ``first/oracle`` (same oracle settings: its stage key matches, nothing reruns)."""
+    source = first / "oracle"
+    if (target / "oracle").exists() or not (source / "stage.json").is_file():
+        return
+    target.mkdir(parents=True, exist_ok=True)
+    os.symlink(os.path.relpath(source.resolve(), target.resolve()), target / "oracle")
+
+
+HEADER = "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed |"
+
+
+def _cell(values: list[float]) -> str:
+    rates = 100 * np.asarray(values)
+    return f"{rates.mean():.1f} ± {rates.std():.1f}"
+
+
+def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals: dict[str, dict[str, Any]]) -> str:
+    """``study.md``, ``study.png`` and ``summary.json`` in the study folder; returns the table."""
+    out = next(iter(configs.values())).out.parent
+    first = next(iter(configs.values()))
+    steps = {label: summary["ifp_env_steps_per_seed"] for label, summary in finals.items()}
+    title = f"{args.name}, {first.env}, {first.seeds} seeds, IFP {max(steps.values()):,} env steps per seed"
+    lines = [
+        f"### {title}",
+        "",
+        "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed |",
+    ]
+    lines.append("|---|---:|---:|---:|")
+    for label, summary in finals.items():
+        success = summary["final_success"]
+        lines.append(f"| {label} | {_cell(success['train'])} | {_cell(success['test'])} | {steps[label]:,} |")
+    lines += ["", f"Paper: {PAPER[args.name]}."]
+    table = "\n".join(lines) + "\n"
+    (out / "study.md").write_text(table)
+
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    labels = list(finals)
+    for axis, split in zip(axes, ("train", "test"), strict=True):
+        rates = [100 * np.asarray(finals[label]["final_success"][split]) for label in labels]
+        axis.bar(range(len(labels)), [r.mean() for r in rates], yerr=[r.std() for r in rates], capsize=3)
+        axis.set_xticks(range(len(labels)), labels, rotation=45, ha="right")
+        axis.set_title(f"{split} instructions")
+        axis.set_ylim(0, 100)
+    axes[0].set_ylabel("final success (%)")
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(out / "study.png", dpi=120)
+    plt.close(figure)
+
+    write_json_atomic(
+        out / "summary.json",
+        {
+            "study": args.name,
+            "env": first.env,
+            "method": first.method,
+            "seeds": first.seeds,
+            "num_patterns": first.num_patterns,
+            "ifp_env_steps_per_seed": steps,
+            **provenance(),
+            "settings": {
+                label: {"folder": str(config.out), "final_success": finals[label]["final_success"]}
+                for label, config in configs.items()
+            },
+        },
+    )
+    return table
+
+
+def study(args: StudyArgs) -> dict[str, dict[str, Any]]:
+    """Runs every setting (reusing finished stages) and writes the study's figure, table and summary."""
+    configs = settings(args)
+    first = next(iter(configs.values())).out
+    finals = {}
+    for index, (label, config) in enumerate(configs.items()):
+        print(f"[study {args.name}] setting {index + 1}/{len(configs)}: {label} -> {config.out}", flush=True)
+        if args.name == "ablation" and index > 0:
+            share_oracle(first, config.out)
+        finals[label] = run(config)
+    print(write_outputs(args, configs, finals))
+    return finals
+
+
+def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    env = env_option(argv, default="kitchen")
+    default = None
+    if env in recipe_names():
+        default = StudyArgs(tyro.MISSING, experiment=dataclasses.replace(default_config(env), out=None))
+    args = tyro.cli(StudyArgs, args=argv, default=default, description=__doc__, config=CLI_CONFIG)
+    try:
+        settings(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return study(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""``experiments.study``: the settings each study runs, its outputs, errors, and (with --all) a quick end-to-end run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from experiments import study
+from experiments.pipeline import default_config
+from tests.conftest import QUICK, TINY_BERT
+
+
+def test_studies_vary_exactly_their_setting(tmp_path):
+    base = default_config("kitchen", seeds=2, out=tmp_path, encoder=TINY_BERT)
+    ablation = study.settings(study.StudyArgs("ablation", base, predicates=(2, 6), arguments=(3,), ifp_env_steps=4096))
+    assert list(ablation) == ["npn2-na3", "npn6-na3"]
+    for label, config in ablation.items():
+        assert config.out == tmp_path / label and config.ifp.total_env_steps == 4096
+        assert config.talar.spec.num_arguments == 3 and config.talar.spec.arg_size == base.talar.spec.arg_size
+        # everything but the spec is the env command's setting
+        assert config.talar.rg_steps == base.talar.rg_steps and config.num_tuples == ablation["npn2-na3"].num_tuples
+    assert [c.talar.spec.num_predicates for c in ablation.values()] == [2, 6]
+    sizes = study.settings(study.StudyArgs("dataset-size", base, dataset_sizes=(1000, 5000)))
+    assert [c.num_tuples for c in sizes.values()] == [1000, 5000]
+    assert len({c.talar for c in sizes.values()}) == 1
+
+
+def test_study_outputs_state_their_budget(tmp_path):
+    base = default_config("kitchen", seeds=2, out=tmp_path, encoder=TINY_BERT)
+    args = study.StudyArgs("dataset-size", base, dataset_sizes=(1000, 5000))
+    configs = study.settings(args)
+    finals = {
+        label: {"final_success": {"train": [0.5, 1.0], "test": [0.25, 0.75]}, "ifp_env_steps_per_seed": 8192}
+        for label in configs
+    }
+    table = study.write_outputs(args, configs, finals)
+    assert "| tuples1000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 |" in table and "Paper:" in table
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["env"] == "kitchen" and summary["seeds"] == 2 and summary["method"] == "talar"
+    assert summary["ifp_env_steps_per_seed"] == {"tuples1000": 8192, "tuples5000": 8192} and "commit" in summary
+    assert (tmp_path / "study.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["ablation", "--method", "onehot"], "varies TALAR's task language"),
+        (["ablation", "--predicates", "0"], "positive counts"),
+        (["dataset-size", "--dataset-sizes", "0"], "positive sizes"),
+        (["ablation", "--ifp-env-steps", "0"], "--ifp-env-steps must be >= 1"),
+    ],
+)
+def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_info:
+        study.main([*argv, "--out", str(tmp_path / "never")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and message in err and "\n" not in err
+    assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.slow
+def test_ablation_quick_end_to_end_shares_the_oracle(tmp_path):
+    argv = ["ablation", "--env", "clevr", *QUICK, "--predicates", "2", "--arguments", "1", "2", "--out", str(tmp_path)]
+    finals = study.main(argv)
+    assert list(finals) == ["npn2-na1", "npn2-na2"]
+    assert (tmp_path / "npn2-na2" / "oracle").is_symlink()
+    tables = np.load(tmp_path / "npn2-na1" / "talar" / "translator" / "tables.npy")
+    assert tables.shape[-1] == 2 + 5  # N_pn + N_a * arg_size
+    assert (tmp_path / "study.md").is_file() and json.loads((tmp_path / "summary.json").read_text())[
+        "study"
+    ] == "ablation"
