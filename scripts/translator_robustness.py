@@ -53,6 +53,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
     parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args()
 
     config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
@@ -90,6 +91,7 @@ def main() -> None:
         )
         translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
         per_seed = {name: [] for name in sets}
+        misses = np.zeros(len(dev_sentences), int)
         for seed in range(args.seeds):
             seed_params = jax.tree.map(lambda x: x[seed : seed + 1], params)
             train_codes = np.asarray(translate(seed_params, sets["train"][0]))[0].round()
@@ -100,9 +102,15 @@ def main() -> None:
             for name, (x, goals) in sets.items():
                 codes = np.asarray(translate(seed_params, x))[0].round()
                 per_seed[name].append(agreement(codes, goals, goal_codes))
+                if name == "development":
+                    misses += [not np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]
         results[count] = {"per_seed": per_seed, "encode_s": encode_s, "total_s": time.perf_counter() - start}
         line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
         print(f"paraphrases {count}: {line}  ({results[count]['total_s']:.0f} s)", flush=True)
+        worst = np.argsort(-misses, kind="stable")[: args.show_failures]
+        for row in worst[misses[worst] > 0]:
+            print(f"    {misses[row]}/{args.seeds} seeds miss: {dev_sentences[row]!r}", flush=True)
+        results[count]["development_misses"] = {dev_sentences[r]: int(misses[r]) for r in np.flatnonzero(misses)}
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(
