@@ -7,7 +7,9 @@ on). No policy is trained: agreement is what the translator contributes.
 RUN is an experiment folder with ``oracle/dataset`` and ``talar/task_language/params.msgpack``; the run is assumed to
 use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``.
 For every ``--paraphrases`` value (0: the paper's translator) it trains one translator per seed of the run from the
-same seed keys and prints agreement per seed and mean ± std.
+same seed keys and prints agreement per seed and mean ± std. With ``--episodes N`` it also runs the run's own
+policies (``RUN/talar``) on the codes of each translator, on paired episodes as ``experiments.generalize`` does: the
+success a swapped-in translator would give, valid when it keeps the goals' training codes (printed per seed).
 """
 
 from __future__ import annotations
@@ -23,8 +25,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data
 from experiments.pipeline import default_config, make_task_language_data, resolve
+from talar_jax.agent import Agent
 from talar_jax.checkpoint import load_tree
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import (
@@ -37,6 +41,22 @@ from talar_jax.language import (
 )
 from talar_jax.optim import fit_seeds
 from talar_jax.talar import make_generate_task_language, make_train_translator, make_translate
+
+
+class SwappedTranslator:
+    """A run's agent whose translator is replaced (its policy unchanged): what ``evaluate_seed`` reads."""
+
+    def __init__(self, agent: Agent, translate, goal_codes: dict[int, np.ndarray]):
+        self.agent, self._translate, self._goal_codes = agent, translate, goal_codes
+
+    def translate_features(self, features: np.ndarray) -> np.ndarray:
+        return self._translate(features)
+
+    def goal_code(self, goal: int) -> np.ndarray:
+        return self._goal_codes[int(goal)]
+
+    def success_rate(self, *args, **kwargs) -> np.ndarray:
+        return self.agent.success_rate(*args, **kwargs)
 
 
 def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.ndarray]) -> float:
@@ -53,6 +73,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
     parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args()
 
@@ -92,6 +113,7 @@ def main() -> None:
         translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
         per_seed = {name: [] for name in sets}
         misses = np.zeros(len(dev_sentences), int)
+        success: dict[str, list] = {}
         for seed in range(args.seeds):
             seed_params = jax.tree.map(lambda x: x[seed : seed + 1], params)
             train_codes = np.asarray(translate(seed_params, sets["train"][0]))[0].round()
@@ -104,9 +126,32 @@ def main() -> None:
                 per_seed[name].append(agreement(codes, goals, goal_codes))
                 if name == "development":
                     misses += [not np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]
-        results[count] = {"per_seed": per_seed, "encode_s": encode_s, "total_s": time.perf_counter() - start}
+            if args.episodes:
+                # the run's policy, fed this translator's codes: valid while the goals keep the run's codes
+                agent = Agent(args.run / "talar", seed=seed)
+                same = all(np.array_equal(agent.goal_code(g).round(), c) for g, c in goal_codes.items())
+                swapped = SwappedTranslator(
+                    agent, lambda x, p=seed_params: np.asarray(translate(p, x))[0].round(), goal_codes
+                )
+                named = {n: (x, g, None) for n, (x, g) in sets.items()}
+                named["yours"] = named.pop("development")
+                rates = evaluate_seed(swapped, named, args.episodes, rng_seed=0)
+                for name, rate in rates.items():
+                    success.setdefault(name, []).append(rate["success"])
+                success.setdefault("goal_codes_unchanged", []).append(bool(same))
+        results[count] = {
+            "per_seed": per_seed,
+            "success_per_seed": success,
+            "encode_s": encode_s,
+            "total_s": time.perf_counter() - start,
+        }
         line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
-        print(f"paraphrases {count}: {line}  ({results[count]['total_s']:.0f} s)", flush=True)
+        print(f"paraphrases {count}: TL agreement {line}  ({results[count]['total_s']:.0f} s)", flush=True)
+        if success:
+            unchanged = success.pop("goal_codes_unchanged")
+            line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in success.items())
+            print(f"    success with the run's policy: {line} (goal codes unchanged per seed: {unchanged})")
+            success["goal_codes_unchanged"] = unchanged
         worst = np.argsort(-misses, kind="stable")[: args.show_failures]
         for row in worst[misses[worst] > 0]:
             print(f"    {misses[row]}/{args.seeds} seeds miss: {dev_sentences[row]!r}", flush=True)
