@@ -226,15 +226,16 @@ def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
     held_out = [s for s, train in zip(cache.sentences, cache.is_train) if not train]
     with contextlib.suppress(ValueError):  # an env without development phrasings has none to keep out
         held_out += load_user_instructions(DEVELOPMENT_FILE, config.env)[0]
+    encoder = load_encoder(config.encoder)
     variants = paraphrase_variants(
         [cache.sentences[r] for r in rows],
         cache.goal_ids[rows],
         count,
         seed=config.talar.paraphrase_seed,
         exclude=held_out,
+        unknown_words=encoder.whole_words() if config.talar.paraphrase_unknown_words else (),
     )
     sentences = [v for per_sentence in variants for v in per_sentence]
-    encoder = load_encoder(config.encoder)
     features = cached_sentence_features(encoder, sentences, config.sentence_readout, progress=config.progress)
     return with_paraphrases(data, features, np.repeat(rows, count))
 

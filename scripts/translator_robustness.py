@@ -7,7 +7,8 @@ on). No policy is trained: agreement is what the translator contributes.
 RUN is an experiment folder with ``oracle/dataset`` and ``talar/task_language/params.msgpack``; the run is assumed to
 use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``.
 For every ``--paraphrases`` value (0: the paper's translator) it trains one translator per seed of the run from the
-same seed keys and prints agreement per seed and mean ± std. With ``--episodes N`` it also runs the run's own
+same seed keys and prints agreement per seed and mean ± std; the translators are kept in
+``RUN/translator-robustness/`` and reused by a later call. With ``--episodes N`` it also runs the run's own
 policies (``RUN/talar``) on the codes of each translator, on paired episodes as ``experiments.generalize`` does: the
 success a swapped-in translator would give, valid when it keeps the goals' training codes (printed per seed).
 """
@@ -29,7 +30,7 @@ from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data
 from experiments.pipeline import default_config, make_task_language_data, resolve
 from talar_jax.agent import Agent
-from talar_jax.checkpoint import load_tree
+from talar_jax.checkpoint import load_tree, save_tree
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import (
     DEVELOPMENT_FILE,
@@ -73,6 +74,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
     parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--unknown-words", action="store_true", help="paraphrases also use unknown words")
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args()
@@ -107,9 +109,22 @@ def main() -> None:
         start = time.perf_counter()
         train_data = paraphrased_data(ctx)
         encode_s = time.perf_counter() - start
-        params, _ = fit_seeds(
-            make_train_translator(talar), seed_keys, targets, train_data, in_axes=(0, None), progress=False
+        unknown = "-unknown" if talar.paraphrase_unknown_words else ""
+        label = f"{count}{unknown}"
+        saved = (
+            args.run / "translator-robustness" / f"paraphrases{count}{unknown}-steps{talar.translator_steps}.msgpack"
         )
+        own = args.run / "talar" / "translator" / "params.msgpack"
+        if count == 0 and args.steps is None and own.is_file():  # the run's own translator (the same training)
+            params = load_tree(own)
+        elif saved.is_file():  # trained by an earlier call (e.g. before the run's policy had finished)
+            params = load_tree(saved)
+        else:
+            params, _ = fit_seeds(
+                make_train_translator(talar), seed_keys, targets, train_data, in_axes=(0, None), progress=False
+            )
+            saved.parent.mkdir(parents=True, exist_ok=True)
+            save_tree(saved, params)
         translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
         per_seed = {name: [] for name in sets}
         misses = np.zeros(len(dev_sentences), int)
@@ -139,14 +154,16 @@ def main() -> None:
                 for name, rate in rates.items():
                     success.setdefault(name, []).append(rate["success"])
                 success.setdefault("goal_codes_unchanged", []).append(bool(same))
-        results[count] = {
+        results[label] = {
             "per_seed": per_seed,
             "success_per_seed": success,
             "encode_s": encode_s,
             "total_s": time.perf_counter() - start,
         }
         line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
-        print(f"paraphrases {count}: TL agreement {line}  ({results[count]['total_s']:.0f} s)", flush=True)
+        print(
+            f"paraphrases {count}: TL agreement {line}  ({results[f'{count}{unknown}']['total_s']:.0f} s)", flush=True
+        )
         if success:
             unchanged = success.pop("goal_codes_unchanged")
             line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in success.items())
@@ -155,7 +172,7 @@ def main() -> None:
         worst = np.argsort(-misses, kind="stable")[: args.show_failures]
         for row in worst[misses[worst] > 0]:
             print(f"    {misses[row]}/{args.seeds} seeds miss: {dev_sentences[row]!r}", flush=True)
-        results[count]["development_misses"] = {dev_sentences[r]: int(misses[r]) for r in np.flatnonzero(misses)}
+        results[label]["development_misses"] = {dev_sentences[r]: int(misses[r]) for r in np.flatnonzero(misses)}
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(

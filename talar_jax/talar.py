@@ -67,6 +67,8 @@ class TalarConfig:
     """Chance that a translator batch row reads one of its instruction's paraphrases instead of the instruction."""
     paraphrase_seed: int = 0
     """Seed of the paraphrases (the same seed gives the same sentences)."""
+    paraphrase_unknown_words: bool = False
+    """Paraphrases may also replace a function word by a word of the encoder's vocabulary no instruction uses."""
 
     @property
     def referential_batch_size(self) -> int:
@@ -98,6 +100,7 @@ class TalarConfig:
                     "translator_paraphrases": self.translator_paraphrases,
                     "paraphrase_probability": self.paraphrase_probability,
                     "paraphrase_seed": self.paraphrase_seed,
+                    **({"paraphrase_unknown_words": True} if self.paraphrase_unknown_words else {}),
                 }
                 if self.translator_paraphrases
                 else {}

@@ -598,3 +598,21 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     # without paraphrases the translator reads the data unchanged (the paper's translator)
     plain = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=0))
     assert methods.paraphrased_data(dataclasses.replace(ctx, config=plain)) is data
+
+
+def test_unknown_word_paraphrases_replace_only_function_words():
+    from talar_jax.language import paraphrase_variants
+    from talar_jax.language.augment import function_words, words
+
+    train = load_instructions("clevr", "train")
+    sentences, goals = list(train.sentences[:160]), train.goal_ids[:160]
+    vocabulary = {w for s in sentences for w in words(s)}
+    function = function_words(sentences, goals)
+    plain = paraphrase_variants(sentences, goals, 4, seed=1)
+    unknown = paraphrase_variants(sentences, goals, 4, seed=1, unknown_words=["sphere", "nudge", "red", "kindly"])
+    assert not {w for vs in plain for v in vs for w in words(v)} - vocabulary  # without the list: training words only
+    new = {w for vs in unknown for v in vs for w in words(v)} - vocabulary
+    assert new == {"sphere", "nudge", "kindly"}  # "red" is an instruction word: never used as an unknown word
+    for source, variants in zip(sentences, unknown, strict=True):
+        for variant in variants:
+            assert _content(variant, function | new) == _content(source, function), (source, variant)

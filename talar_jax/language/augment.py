@@ -9,9 +9,11 @@ sentence's meaning, using only the words of the training set:
   "you", "the", "is"; every other word (a colour, a relation, "microwave") is a *content word* and is never dropped,
   inserted or substituted, so a variant names the same goal as its source;
 * each variant applies 1 to ``max_edits`` random edits: drop a function word, insert a function word, substitute a
-  function word by another one seen in the same context (same left or right neighbour), swap two adjacent words, or
-  splice the sentence with another training sentence of the same goal at a content word they share (the first part
-  of one, the rest of the other: "Is there any" + "red ball is pushed behind the blue ball.").
+  function word by another one seen in the same context (same left or right neighbour), swap two adjacent words,
+  splice the sentence's opening function words onto another training sentence of the same goal from its first content
+  word on, when both start their content with the same word ("Is there any" + "red ball is pushed behind the blue
+  ball."), and, when given
+  ``unknown_words`` (the encoder's vocabulary), replace a function word by a word no instruction uses.
 
 Everything is a pure function of (sentences, goal ids, seed, excluded sentences): the same seed gives the same
 variants. Test and development sentences never serve as material: the caller passes the training sentences only, and
@@ -27,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 _WORD = re.compile(r"\w+(?:'\w+)?|[^\w\s]")
-EDITS: tuple[str, ...] = ("drop", "insert", "substitute", "swap", "splice")
+EDITS: tuple[str, ...] = ("drop", "insert", "substitute", "swap", "splice", "replace")
 
 
 def words(sentence: str) -> list[str]:
@@ -61,6 +63,7 @@ def paraphrase_variants(
     max_edits: int = 3,
     function_fraction: float = 0.5,
     exclude: Sequence[str] = (),
+    unknown_words: Sequence[str] = (),
 ) -> list[list[str]]:
     """``num_variants`` paraphrases of each training sentence (see the module docstring).
 
@@ -74,6 +77,9 @@ def paraphrase_variants(
         exclude: held-out sentences (test, development) no variant may equal, compared word by word: edits of
             training words can rebuild a test phrasing ("was moved" -> "was pushed"), which would then no longer be
             unseen. Such a variant is drawn again (up to 20 times; then the source sentence is used).
+        unknown_words: words outside the instructions (e.g. ``BertEncoder.whole_words()``); if given, a sixth edit
+            replaces a function word by one of them, so that the translator learns to ignore a word it has never
+            seen in a function position ("nudging", "sphere"). Empty: that edit is never drawn.
 
     Returns:
         One list of ``num_variants`` sentences per input sentence (a variant may repeat its source when no edit
@@ -95,8 +101,14 @@ def paraphrase_variants(
     for row, goal in enumerate(goal_ids):
         same_goal[goal].append(row)
 
+    unknown = sorted(set(unknown_words) - {w for tokens in tokenised for w in tokens})
+    edits = EDITS if unknown else EDITS[:-1]
+
+    def is_content(word: str) -> bool:
+        return word[0].isalnum() and word not in function and word not in unknown
+
     def edit(tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
-        kind = EDITS[rng.integers(len(EDITS))]
+        kind = edits[rng.integers(len(edits))]
         spots = [i for i, w in enumerate(tokens) if w in function]
         if kind == "drop" and len(spots) > 1:
             i = spots[rng.integers(len(spots))]
@@ -114,12 +126,16 @@ def paraphrase_variants(
             i = int(rng.integers(len(tokens) - 1))
             if tokens[i][0].isalnum() and tokens[i + 1][0].isalnum():
                 return tokens[:i] + [tokens[i + 1], tokens[i]] + tokens[i + 2 :]
-        if kind == "splice":
+        if kind == "replace" and spots:
+            i = spots[rng.integers(len(spots))]
+            return tokens[:i] + [unknown[rng.integers(len(unknown))]] + tokens[i + 1 :]
+        if (
+            kind == "splice"
+        ):  # this sentence's opening function words + a same-goal sentence from its first content word
             other = tokenised[same_goal[goal_ids[row]][rng.integers(len(same_goal[goal_ids[row]]))]]
-            shared = [w for w in dict.fromkeys(tokens) if w[0].isalnum() and w not in function and w in other]
-            if shared:
-                word = shared[rng.integers(len(shared))]
-                return tokens[: tokens.index(word)] + other[other.index(word) :]
+            first, other_first = (next((i for i, w in enumerate(t) if is_content(w)), None) for t in (tokens, other))
+            if first is not None and other_first is not None and tokens[first] == other[other_first]:
+                return tokens[:first] + other[other_first:]
         return tokens
 
     held_out = {tuple(w for w in words(s) if w[0].isalnum()) for s in exclude}

@@ -137,6 +137,12 @@ class BertEncoder:
         self._hidden = jax.jit(self.module.apply)
         self._pooled = jax.jit(lambda params, ids, mask: mean_pool(self.module.apply(params, ids, mask), mask))
 
+    def whole_words(self, min_length: int = 3) -> list[str]:
+        """The tokenizer's vocabulary entries that are whole alphabetic words of ``min_length`` letters or more
+        (sorted): words a sentence may contain that a project's instructions never use."""
+        vocab = self.tokenizer.get_vocab()
+        return sorted(w for w in vocab if w.isascii() and w.isalpha() and w.islower() and len(w) >= min_length)
+
     @property
     def embedding_dim(self) -> int:
         """Size D of a sentence embedding (the hidden size)."""
