@@ -78,7 +78,8 @@ TRANSLATOR_READS = RG_READS | {
     "talar.translator_learning_rate",
     "talar.batch_size",
     "talar.translator_steps",
-}
+    "talar.translator_paraphrases",
+}  # the paraphrases' probability, seed and unknown words are read only with paraphrases on (the next test)
 
 
 @pytest.mark.parametrize("method", list(METHODS))
@@ -99,6 +100,18 @@ def test_referential_game_and_translator_keys_follow_exactly_what_they_read():
         translator_changed = keys["talar/translator"] != reference["talar/translator"]
         assert rg_changed == (name in RG_READS), f"changing {name}: referential game rerun {rg_changed}"
         assert translator_changed == (name in TRANSLATOR_READS), f"changing {name}: translator {translator_changed}"
+
+
+def test_paraphrase_settings_reach_the_translator_key_only_when_paraphrases_are_on():
+    base = default_config("clevr", physics="c")
+    on = dataclasses.replace(base, talar=dataclasses.replace(base.talar, translator_paraphrases=8))
+    reference = _keys(on)
+    for change in ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, {"paraphrase_unknown_words": True}):
+        keys = _keys(dataclasses.replace(on, talar=dataclasses.replace(on.talar, **change)))
+        assert keys["talar/translator"] != reference["talar/translator"], change
+        assert keys["talar/task_language"] == reference["talar/task_language"], change
+        off = dataclasses.replace(base, talar=dataclasses.replace(base.talar, **change))
+        assert _keys(off)["talar/translator"] == _keys(base)["talar/translator"], change  # not read without paraphrases
 
 
 def test_bert_encoding_size_reaches_the_ifp_key():
