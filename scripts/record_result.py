@@ -30,7 +30,15 @@ def main() -> None:
     if not (folder / "summary.json").is_file():
         sys.exit(f"error: {folder} has no summary.json (not a finished method folder)")
     args.dest.mkdir(parents=True, exist_ok=True)
-    for name in ("config.json", "results.md", "summary.json", "curves.png", "tsne.png", "language.json"):
+    for name in (
+        "config.json",
+        "results.md",
+        "summary.json",
+        "curves.png",
+        "tsne.png",
+        "deployment.png",
+        "language.json",
+    ):
         if (folder / name).is_file():
             shutil.copy(folder / name, args.dest / name)
     for marker in sorted(run_root.glob("**/stage.json")):
