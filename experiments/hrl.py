@@ -29,6 +29,7 @@ import numpy as np
 import tyro
 
 import envs
+from experiments.cli import valid_or_exit
 from experiments.pipeline import CLI_CONFIG, default_config, run
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.hrl import (
@@ -291,11 +292,7 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = tyro.cli(HRLArgs, args=argv, config=CLI_CONFIG, description=__doc__.splitlines()[0])
-    try:
-        resolve(args)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    valid_or_exit(resolve, args)
     return hrl(args)
 
 

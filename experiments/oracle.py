@@ -19,7 +19,6 @@ of successful episodes, L_N drawn from the goal's training instructions, with th
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ import numpy as np
 import tyro
 
 import envs
+from experiments.cli import valid_or_exit
 from experiments.recipes import get_recipe
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler
@@ -215,12 +215,7 @@ def run(args: OracleArgs) -> float:
 def main(argv: list[str] | None = None) -> float:
     """``python -m experiments.oracle``: a bad option prints one ``error:`` line and exits with status 2."""
     args = tyro.cli(OracleArgs, args=argv, description=__doc__)
-    try:
-        get_recipe(args.env)
-        collector_of(args)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    valid_or_exit(lambda: (get_recipe(args.env), collector_of(args)))
     return run(args)
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ import numpy as np
 import tyro
 
 import envs
+from experiments.cli import valid_or_exit
 from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSetup, method_stage_keys
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
@@ -379,11 +379,7 @@ CLI_CONFIG = (tyro.conf.AvoidSubcommands,)
 
 def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
     """``check_inputs(config)``, or one ``error: ...`` line on stderr and exit status 2."""
-    try:
-        return check_inputs(config)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    return valid_or_exit(check_inputs, config)
 
 
 def run(config: ExperimentConfig) -> dict[str, Any]:

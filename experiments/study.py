@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -29,6 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
+from experiments.cli import valid_or_exit  # noqa: E402
 from experiments.compare import env_option  # noqa: E402
 from experiments.pipeline import CLI_CONFIG, ExperimentConfig, check_inputs, default_config, run  # noqa: E402
 from experiments.recipes import recipe_names  # noqa: E402
@@ -166,9 +166,10 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
     return table
 
 
-def study(args: StudyArgs) -> dict[str, dict[str, Any]]:
-    """Runs every setting (reusing finished stages) and writes the study's figure, table and summary."""
-    configs = settings(args)
+def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -> dict[str, dict[str, Any]]:
+    """Runs every setting (reusing finished stages) and writes the study's figure, table and summary; ``configs``:
+    ``settings(args)`` when already computed (each resolves its encoder folder)."""
+    configs = configs if configs is not None else settings(args)
     first = next(iter(configs.values())).out
     finals = {}
     for index, (label, config) in enumerate(configs.items()):
@@ -186,12 +187,7 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
     if env in recipe_names():
         default = StudyArgs(tyro.MISSING, experiment=dataclasses.replace(default_config(env), out=None))
     args = tyro.cli(StudyArgs, args=argv, default=default, description=__doc__, config=CLI_CONFIG)
-    try:
-        settings(args)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
-    return study(args)
+    return study(args, valid_or_exit(settings, args))
 
 
 if __name__ == "__main__":
