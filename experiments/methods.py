@@ -47,6 +47,7 @@ from talar_jax.talar import (
     make_train_task_language,
     make_train_translator,
     make_translate,
+    prepare_referential_data,
     task_language_quality,
     with_paraphrases,
 )
@@ -249,7 +250,12 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
         fit = make_train_task_language(config.talar, cache.vocab_size, cache.max_tokens)
         label, timings = "talar/referential game", {}
         params, losses = fit_seeds(
-            fit, ctx.seed_keys("task_language"), data, label=label, progress=config.progress, timings=timings
+            fit,
+            ctx.seed_keys("task_language"),
+            prepare_referential_data(config.talar, data),
+            label=label,
+            progress=config.progress,
+            timings=timings,
         )
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "losses.npy", losses)

@@ -37,6 +37,7 @@ from talar_jax.talar import (  # noqa: E402
     make_train_task_language,
     make_train_translator,
     make_translate,
+    prepare_referential_data,
     task_language_quality,
 )
 
@@ -51,14 +52,21 @@ def main() -> None:
     parser.add_argument("--translator-steps", type=int, nargs="+", default=[1000, 3000, 10000])
     parser.add_argument("--sentence-readout", default="sentence+prefixes")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--receiver-prefix-dims", type=int, default=None, help="TalarConfig.receiver_prefix_dims")
+    parser.add_argument("--receiver-hidden", type=int, nargs="+", default=None, help="TalarConfig.receiver_hidden")
     args = parser.parse_args()
     recipe = get_recipe(args.env)
     cache = build_cache(args.env, progress=False)
     data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
     config = dataclasses.replace(recipe.talar, rg_steps=max(args.rg_milestones))
+    if args.receiver_prefix_dims:
+        config = dataclasses.replace(config, receiver_prefix_dims=args.receiver_prefix_dims)
+    if args.receiver_hidden:
+        config = dataclasses.replace(config, receiver_hidden=tuple(args.receiver_hidden))
+    rg_data = prepare_referential_data(config, data)
     fit = make_train_task_language(config, cache.vocab_size, cache.max_tokens)
     keys = jax.random.split(jax.random.key(args.seed), args.seeds)
-    state = jax.jit(jax.vmap(fit.init, in_axes=(0, None)))(keys, data)
+    state = jax.jit(jax.vmap(fit.init, in_axes=(0, None)))(keys, rg_data)
     generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))
     translate = jax.jit(jax.vmap(make_translate(config), in_axes=(0, None)))
     rows, done, rg_seconds = [], 0, 0.0
@@ -66,7 +74,7 @@ def main() -> None:
         steps = milestone - done
         run = jax.jit(jax.vmap(lambda s, d, n=steps: fit.run(s, d, steps=n), in_axes=(0, None)))
         start = time.perf_counter()
-        state, losses = run(state, data)
+        state, losses = run(state, rg_data)
         losses = np.asarray(losses)
         rg_seconds += time.perf_counter() - start
         done = milestone
@@ -91,7 +99,8 @@ def main() -> None:
             means = {k: round(float(np.mean(row[k])), 3) for k in quality[0]}
             print(json.dumps({k: v for k, v in row.items() if k not in quality[0]} | means), flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"env": args.env, "seeds": args.seeds, "rows": rows}, indent=2))
+        arguments = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+        args.json.write_text(json.dumps({"args": arguments, "rows": rows}, indent=2))
 
 
 if __name__ == "__main__":

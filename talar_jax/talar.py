@@ -28,6 +28,7 @@ from talar_jax.task_language import (
     receiver_logits_per_prefix,
     referential_game_loss,
     translator_loss,
+    translator_nll,
 )
 
 
@@ -41,6 +42,10 @@ class TalarConfig:
     """Hidden layers of each argument and predicate network (Table 2: [128, 128, out], relu)."""
     receiver_hidden: tuple[int, ...] = (256,)
     """Hidden layers of the receiver on [L_T, BERT prefix embedding] (the paper: a fully-connected layer)."""
+    receiver_prefix_dims: int | None = None
+    """The receiver reads the prefix embedding's first ``receiver_prefix_dims`` principal components over the task
+    dataset's prefixes (a fixed linear projection, ``prepare_referential_data``) instead of all D entries: a
+    rank-limited first layer, several times cheaper. None: the whole embedding (the paper's)."""
     translator_hidden: tuple[int, ...] = (256, 256, 256, 256)
     """Translator MLP (Table 2: [256, 256, 256, 256, |L_T|], relu)."""
     gumbel_temperature: float = 1.0
@@ -60,6 +65,11 @@ class TalarConfig:
     tuple) instead of one sampled token per tuple: same objective, lower-variance gradient."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
+    translator_full_batch: bool = False
+    """Each translator step takes the exact expected loss over the whole task dataset instead of a ``batch_size``
+    sample of tuples: one row per distinct instruction (and per paraphrase), whose target is the mean TL of the
+    instruction's tuples, weighted by their share (Eq. 3 is linear in the target, so this is the same objective
+    without sampling noise; ``batch_size`` is then unused by the translator). False: the paper's sampled batches."""
     translator_paraphrases: int = 0
     """Paraphrases per training instruction the translator also learns from (``talar_jax.language.augment``: edits
     of function words, word order and splices of same-goal training sentences; 0: the paper's translator)."""
@@ -81,6 +91,7 @@ class TalarConfig:
             "spec": self.spec,
             "generator_hidden": self.generator_hidden,
             "receiver_hidden": self.receiver_hidden,
+            **({"receiver_prefix_dims": self.receiver_prefix_dims} if self.receiver_prefix_dims else {}),
             "gumbel_temperature": self.gumbel_temperature,
             "rg_learning_rate": self.rg_learning_rate,
             "referential_batch_size": self.referential_batch_size,
@@ -93,7 +104,7 @@ class TalarConfig:
         return {
             "translator_hidden": self.translator_hidden,
             "translator_learning_rate": self.translator_learning_rate,
-            "batch_size": self.batch_size,
+            **({"translator_full_batch": True} if self.translator_full_batch else {"batch_size": self.batch_size}),
             "translator_steps": self.translator_steps,
             **(
                 {
@@ -108,7 +119,7 @@ class TalarConfig:
         }
 
     def __post_init__(self):
-        for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size"):
+        for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size", "receiver_prefix_dims"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.translator_paraphrases < 0 or not 0.0 <= self.paraphrase_probability <= 1.0:
@@ -219,6 +230,31 @@ def build_task_language_data(
     )
 
 
+def prepare_referential_data(config: TalarConfig, data: TaskLanguageData) -> TaskLanguageData:
+    """The referential game's view of ``data``: with ``config.receiver_prefix_dims = k``, every prefix embedding is
+    replaced by its coordinates on the first k principal axes of ``data.prefix_table`` (the distinct prefixes of the
+    task dataset's instructions, so only training sentences shape it), centred on their mean. The receiver's first
+    layer then multiplies k inputs instead of D. Without ``receiver_prefix_dims`` ``data`` is returned unchanged."""
+    dims = config.receiver_prefix_dims
+    if not dims:
+        return data
+    table = np.asarray(data.prefix_table, np.float64)
+    if dims > min(table.shape):
+        raise ValueError(
+            f"receiver_prefix_dims={dims} exceeds the prefix table's rank bound {min(table.shape)} "
+            f"({table.shape[0]} distinct prefixes of {table.shape[1]} entries)"
+        )
+    mean = table.mean(0)
+    _, _, axes = np.linalg.svd(table - mean, full_matrices=False)
+    basis = axes[:dims].T
+    basis *= np.where(basis[np.abs(basis).argmax(0), np.arange(dims)] < 0, -1.0, 1.0)  # a fixed sign per axis
+
+    def project(x):
+        return jnp.asarray((np.asarray(x, np.float64) - mean) @ basis, jnp.float32)
+
+    return data._replace(prefix_embeddings=project(data.prefix_embeddings), prefix_table=project(data.prefix_table))
+
+
 def sample_referential_batch(
     rng_rows: jax.Array, rng_prefix: jax.Array, data: TaskLanguageData, batch_size: int
 ) -> tuple[jax.Array, jax.Array]:
@@ -264,6 +300,8 @@ def _generator(config: TalarConfig) -> TaskLanguageGenerator:
 def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: int | None = None) -> AdamFit:
     """The referential game as an ``AdamFit`` over ``data``: ``fit(rng, data) -> (params, losses)`` (vmap over seeds).
 
+    ``data`` is ``prepare_referential_data(config, data)`` (the same as ``data`` unless ``receiver_prefix_dims``).
+
     ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step. ``max_tokens``
     (the longest instruction's token count) is needed with ``config.rg_all_tokens``.
     """
@@ -289,6 +327,11 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
         return referential_game_loss(logits, data.prefix_next_token[prefix], mask)
 
     def init_params(rng: jax.Array, data: TaskLanguageData):
+        if config.receiver_prefix_dims and data.prefix_embeddings.shape[-1] != config.receiver_prefix_dims:
+            raise ValueError(
+                f"receiver_prefix_dims={config.receiver_prefix_dims} but the prefix embeddings have "
+                f"{data.prefix_embeddings.shape[-1]} entries: pass prepare_referential_data(config, data)"
+            )
         rng_generator, rng_receiver = jax.random.split(rng)
         obs = data.states[:1]
         return {
@@ -323,7 +366,7 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
         del targets
         return translator.init(rng, data.sentence_embeddings[:1])
 
-    def loss_fn(params, rng_step, targets: jax.Array, data: TaskLanguageData):
+    def sampled_loss(params, rng_step, targets: jax.Array, data: TaskLanguageData):
         rows = jax.random.randint(rng_step, (config.batch_size,), 0, data.states.shape[0])
         if data.sentence_variants is not None:  # some rows read a paraphrase of their instruction
             rng_pick, rng_use = jax.random.split(jax.random.fold_in(rng_step, 1))
@@ -338,6 +381,24 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
         else:
             logits = translator.apply(params, data.sentence_embeddings[data.sentence_ids[rows]])
         return translator_loss(spec, logits, jax.lax.stop_gradient(targets[rows]))
+
+    def full_batch_loss(params, rng_step, targets: jax.Array, data: TaskLanguageData):
+        del rng_step
+        distinct = data.dataset_sentences.shape[0]
+        share = jnp.zeros(distinct).at[data.tuple_sentence].add(1.0) / data.tuple_sentence.shape[0]
+        mean_target = jax.ops.segment_sum(targets, data.tuple_sentence, distinct) / (share[:, None] * targets.shape[0])
+        mean_target = jax.lax.stop_gradient(mean_target)
+        logits = translator.apply(params, data.sentence_embeddings[data.dataset_sentences])
+        nll = translator_nll(spec, logits, mean_target)
+        if data.sentence_variants is None:
+            return (share * nll).sum()
+        variants = data.sentence_variants[data.dataset_sentences]  # (U, K)
+        variant_logits = translator.apply(params, data.sentence_embeddings[variants])
+        variant_nll = translator_nll(spec, variant_logits, mean_target[:, None, :]).mean(-1)
+        p = config.paraphrase_probability
+        return (share * ((1.0 - p) * nll + p * variant_nll)).sum()
+
+    loss_fn = full_batch_loss if config.translator_full_batch else sampled_loss
 
     return AdamFit(init_params, loss_fn, config.translator_learning_rate, config.translator_steps)
 

@@ -200,19 +200,25 @@ def referential_game_loss(
     return ((nll * mask).sum(-1) / mask.sum(-1)).mean()
 
 
-def translator_loss(spec: TaskLanguageSpec, logits: jax.Array, target: jax.Array) -> jax.Array:
-    """Eq. 3: -log p_phi(L_T | b(L_N)), with independent Bernoulli predicates and categorical arguments.
+def translator_nll(spec: TaskLanguageSpec, logits: jax.Array, target: jax.Array) -> jax.Array:
+    """Eq. 3 per row: -log p_phi(L_T | b(L_N)), with independent Bernoulli predicates and categorical arguments.
 
     Args:
         spec: task-language shape.
         logits: (B, |L_T|) translator outputs.
-        target: (B, |L_T|) the generator's hard task language.
+        target: (B, |L_T|) the generator's hard task language, or a mean of such (the NLL is linear in the target,
+            so a row with the mean target of k tuples carries the mean of their k losses).
 
     Returns:
-        Scalar mean over the batch of the summed per-component negative log-likelihoods.
+        (B,) the summed per-component negative log-likelihoods of each row.
     """
     predicate_logits, argument_logits = split_task_language(spec, logits)
     predicate_target, argument_target = split_task_language(spec, target)
     predicate_nll = optax.sigmoid_binary_cross_entropy(predicate_logits, predicate_target).sum(-1)
     argument_nll = optax.softmax_cross_entropy(argument_logits, argument_target).sum(-1)
-    return (predicate_nll + argument_nll).mean()
+    return predicate_nll + argument_nll
+
+
+def translator_loss(spec: TaskLanguageSpec, logits: jax.Array, target: jax.Array) -> jax.Array:
+    """Eq. 3: the mean over the batch of ``translator_nll``."""
+    return translator_nll(spec, logits, target).mean()

@@ -66,6 +66,7 @@ RG_READS = {
     "talar.spec",
     "talar.generator_hidden",
     "talar.receiver_hidden",
+    "talar.receiver_prefix_dims",
     "talar.gumbel_temperature",
     "talar.rg_learning_rate",
     "talar.rg_batch_size",
@@ -79,6 +80,7 @@ TRANSLATOR_READS = RG_READS | {
     "talar.batch_size",
     "talar.translator_steps",
     "talar.translator_paraphrases",
+    "talar.translator_full_batch",
 }  # the paraphrases' probability, seed and unknown words are read only with paraphrases on (the next test)
 
 

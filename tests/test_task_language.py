@@ -13,8 +13,10 @@ from talar_jax.talar import (
     make_train_task_language,
     make_train_translator,
     make_translate,
+    prepare_referential_data,
     sample_referential_batch,
     task_language_quality,
+    with_paraphrases,
 )
 from talar_jax.task_language import (
     Receiver,
@@ -25,6 +27,7 @@ from talar_jax.task_language import (
     gumbel_softmax,
     receiver_logits_per_prefix,
     translator_loss,
+    translator_nll,
 )
 
 
@@ -184,6 +187,62 @@ def test_per_prefix_receiver_and_per_sentence_translator_equal_the_per_row_netwo
     np.testing.assert_allclose(
         fit.loss(translator_params, rng, targets, data), translator_loss(config.spec, logits, targets[rows]), rtol=1e-5
     )
+
+
+def test_full_batch_translator_loss_is_the_expected_sampled_loss():
+    """translator_full_batch: one row per distinct instruction with its tuples' mean target, weighted by their
+    share, equals the mean per-tuple loss over the whole dataset; with paraphrases, the mix of the instruction's and
+    its paraphrases' losses the sampled batches draw with ``paraphrase_probability``."""
+    data, _, _, _ = _toy_data(tuples=300)
+    config = TalarConfig(translator_full_batch=True, paraphrase_probability=0.3)
+    fit = make_train_translator(config)
+    targets = jnp.asarray(np.random.default_rng(3).integers(0, 2, (300, config.spec.size)), jnp.float32)
+    params = fit.init_params(jax.random.key(1), targets, data)
+    translator = Translator(config.spec, config.translator_hidden)
+    per_tuple = translator_nll(
+        config.spec, translator.apply(params, data.sentence_embeddings[data.sentence_ids]), targets
+    )
+    np.testing.assert_allclose(fit.loss(params, jax.random.key(0), targets, data), per_tuple.mean(), rtol=1e-5)
+
+    features = np.random.default_rng(4).normal(size=(2 * len(data.dataset_sentences), 8))
+    paraphrased = with_paraphrases(data, features, np.repeat(np.asarray(data.dataset_sentences), 2))
+    variant_rows = paraphrased.sentence_variants[data.sentence_ids]  # (N, 2)
+    variant_nll = translator_nll(
+        config.spec, translator.apply(params, paraphrased.sentence_embeddings[variant_rows]), targets[:, None, :]
+    ).mean(-1)
+    expected = (0.7 * per_tuple + 0.3 * variant_nll).mean()
+    np.testing.assert_allclose(fit.loss(params, jax.random.key(0), targets, paraphrased), expected, rtol=1e-5)
+    assert "batch_size" not in config.translator_fields() and "batch_size" in TalarConfig().translator_fields()
+
+
+def test_receiver_prefix_dims_projects_onto_the_training_prefixes_principal_axes():
+    data, _, _, vocab = _toy_data(tuples=64, dim=8)
+    assert prepare_referential_data(TalarConfig(), data) is data  # the paper's receiver: untouched
+    rank = np.linalg.matrix_rank(np.asarray(data.prefix_table) - np.asarray(data.prefix_table).mean(0))
+    full = prepare_referential_data(TalarConfig(receiver_prefix_dims=rank), data)
+    assert full.prefix_embeddings.shape == (data.prefix_embeddings.shape[0], rank)
+
+    def distances(x):
+        x = np.asarray(x, np.float64)
+        return np.linalg.norm(x[:, None] - x[None], axis=-1)
+
+    # all principal axes of a rank-r table: a rotation of the centred prefixes, so distances are kept ...
+    np.testing.assert_allclose(distances(full.prefix_table), distances(data.prefix_table), atol=1e-4)
+    # ... and one axis keeps the direction of largest spread
+    one = np.asarray(prepare_referential_data(TalarConfig(receiver_prefix_dims=1), data).prefix_table)[:, 0]
+    centred = np.asarray(data.prefix_table) - np.asarray(data.prefix_table).mean(0)
+    assert one.var() == pytest.approx(np.linalg.svd(centred, compute_uv=False)[0] ** 2 / len(centred), rel=1e-4)
+    assert full.sentence_embeddings is data.sentence_embeddings  # the translator's input is not touched
+
+    config = TalarConfig(receiver_prefix_dims=2, rg_steps=5, batch_size=16)
+    fit = make_train_task_language(config, vocab)
+    with pytest.raises(ValueError, match="prepare_referential_data"):
+        fit.init_params(jax.random.key(0), data)
+    params, losses = fit(jax.random.key(0), prepare_referential_data(config, data))
+    assert params["receiver"]["params"]["ReluMLP_0"]["dense_0"]["kernel"].shape[0] == config.spec.size + 2
+    assert np.isfinite(np.asarray(losses)).all()
+    with pytest.raises(ValueError, match="rank bound"):
+        prepare_referential_data(TalarConfig(receiver_prefix_dims=100), data)
 
 
 def test_task_language_quality_on_a_hand_built_table():
