@@ -5,12 +5,15 @@
 Times ``--steps`` jitted steps (5 seeds vmapped, compile apart) of the env recipe's referential game and translator
 on a task dataset, in the layout the fits choose (the receiver's first layer once per distinct prefix and the
 translator once per distinct sentence, when those are fewer than the rows of a step) and in the per-row layout,
-side by side in one process. Prints a table and writes ``benchmarks/results/supervised_layouts_<env>.json``.
+side by side in one process; with ``--prefix-dims k`` also the chosen layout of the game whose receiver reads the
+prefixes' first k principal components (``TalarConfig.receiver_prefix_dims``). Prints a table and writes
+``benchmarks/results/supervised_layouts_<env>.json``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import time
@@ -26,7 +29,12 @@ import numpy as np  # noqa: E402
 from experiments.recipes import get_recipe  # noqa: E402
 from talar_jax.dataset import TaskDataset  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
-from talar_jax.talar import make_task_language_data, make_train_task_language, make_train_translator  # noqa: E402
+from talar_jax.talar import (  # noqa: E402
+    make_task_language_data,
+    make_train_task_language,
+    make_train_translator,
+    prepare_referential_data,
+)
 
 RESULTS_DIR = Path(__file__).parent / "results"
 
@@ -51,6 +59,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--sentence-readout", default="sentence+prefixes")
+    parser.add_argument(
+        "--prefix-dims", type=int, nargs="*", default=[32], help="also time the game with receiver_prefix_dims = each"
+    )
     args = parser.parse_args()
     cache = build_cache(args.env, progress=False)
     data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
@@ -74,6 +85,17 @@ def main() -> None:
         print(
             f"{args.env} {name}: chosen layout {1000 * cheap:.1f} ms/step, per-row {1000 * plain:.1f} ms/step "
             f"({plain / cheap:.2f}x)",
+            flush=True,
+        )
+    rg = results[0]
+    for dims in args.prefix_dims:
+        projected_config = dataclasses.replace(config, receiver_prefix_dims=dims)
+        fit = make_train_task_language(projected_config, cache.vocab_size, cache.max_tokens)
+        projected = time_fit(fit, prepare_referential_data(projected_config, data), (), args.seeds, args.steps)
+        rg[f"prefix_dims_{dims}_ms_per_step"] = 1000 * projected
+        print(
+            f"{args.env} referential game, receiver_prefix_dims={dims}: {1000 * projected:.1f} ms/step "
+            f"({rg['chosen_ms_per_step'] / 1000 / projected:.2f}x faster than the whole embedding)",
             flush=True,
         )
     sizes = {

@@ -168,6 +168,9 @@ def method_stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: st
         return {f"{method}/behaviour_cloning": behaviour_cloning_key(config, method, upstream_key, cache_key)}
     if method.startswith("bert-"):  # no stage of its own: the encoding's inputs
         return {method: stable_hash(method, cache_key, config.sentence_readout, config.talar.spec.size)}
+    if method.startswith("aligned-"):  # the same, with the generator's architecture
+        t = config.talar
+        return {method: stable_hash(method, cache_key, config.sentence_readout, t.spec, t.generator_hidden)}
     raise ValueError(f"unknown method {method!r}; valid methods: {', '.join(METHODS)}")
 
 
@@ -320,10 +323,11 @@ def setup_onehot(ctx: MethodContext) -> MethodSetup:
     return _frozen_table_setup(ctx, tables, method_stage_keys(ctx.config, ctx.upstream_key, ctx.cache.key)["onehot"])
 
 
-def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool) -> MethodSetup:
+def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned: bool = False) -> MethodSetup:
     config = ctx.config
     features = ctx.data.sentence_embeddings  # the same sentence readout the translators get (on device already)
-    conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary)
+    architecture = (config.talar.spec, config.talar.generator_hidden) if aligned else None
+    conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary, architecture)
     name = config.method
     ((stage_name, key),) = method_stage_keys(config, ctx.upstream_key, ctx.cache.key).items()
     if not pretrained:
@@ -360,7 +364,11 @@ METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
     "pretrained-bert-continuous": lambda ctx: _encoding_setup(ctx, binary=False, pretrained=True),
     "gla": setup_gla,
     "handcrafted": setup_handcrafted,
+    "aligned-bert-binary": lambda ctx: _encoding_setup(ctx, binary=True, pretrained=False, aligned=True),
+    "aligned-bert-continuous": lambda ctx: _encoding_setup(ctx, binary=False, pretrained=False, aligned=True),
 }
+PAPER_COMPARISON: tuple[str, ...] = tuple(METHODS)[:8]
+"""The eight methods of the paper's Fig. 4 (the Aligned baselines belong to Appendix E.3)."""
 METHOD_LABELS: dict[str, str] = {
     "talar": "TALAR",
     "onehot": "One-hot",
@@ -370,4 +378,6 @@ METHOD_LABELS: dict[str, str] = {
     "pretrained-bert-continuous": "Pre-trained BERT-continuous",
     "gla": "GLA",
     "handcrafted": "Handcrafted",
+    "aligned-bert-binary": "Aligned BERT-binary",
+    "aligned-bert-continuous": "Aligned BERT-continuous",
 }

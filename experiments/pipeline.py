@@ -60,7 +60,8 @@ class ExperimentConfig:
     """Independent seeds of the referential game, translator and IFP (vmapped in one program)."""
     method: str = "talar"
     """Instruction encoding fed to the policy: talar, onehot, bert-binary, bert-continuous, pretrained-bert-binary,
-    pretrained-bert-continuous, gla, handcrafted."""
+    pretrained-bert-continuous, gla, handcrafted, aligned-bert-binary, aligned-bert-continuous (Appendix E.3: the
+    TL generator's architecture as the encoding layer)."""
     out: Path | None = None
     """Output folder (default runs/<env>; a run found there is resumed, finished stages with unchanged inputs are
     reused)."""

@@ -6,10 +6,14 @@ NAME is one of
   (2, 3, 4) predicate and argument networks; the paper finds larger better, N_pn = 6, N_a = 4 sufficient.
 * ``dataset-size`` (paper Fig. 13, Appendix E.4): TALAR with task datasets of ``--dataset-sizes`` tuples (10k, 25k,
   50k); the paper finds 10k tuples already give 76 %+ on kitchen, above every baseline.
+* ``aligned`` (paper Fig. 12, Appendix E.3): TALAR against the BERT baselines whose encoding layer has the TL
+  generator's architecture (``--method aligned-bert-binary`` / ``aligned-bert-continuous``) and the plain BERT-binary /
+  BERT-continuous; the paper finds the aligned baselines better than the plain ones but below TALAR.
 
 Each setting is one experiment folder under ``--out`` (default ``runs/study-<name>-<env>``) with every stage cached,
 so an interrupted study resumes where it stopped. The ablation's settings share the first one's oracle and task
-dataset (a link to its ``oracle`` folder); dataset sizes collect their own. Writes ``study.png`` (final success per
+dataset (a link to its ``oracle`` folder), as do the aligned study's methods; dataset sizes collect their own.
+Writes ``study.png`` (final success per
 setting, train and test instructions, mean ± std over seeds), ``study.md`` and ``summary.json`` (env, method, IFP env
 steps per seed, seeds, command and commit beside every setting's final success per seed).
 """
@@ -35,12 +39,21 @@ from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
 
-STUDIES: tuple[str, ...] = ("ablation", "dataset-size")
+STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned")
+ALIGNED_METHODS: tuple[str, ...] = (
+    "talar",
+    "aligned-bert-binary",
+    "aligned-bert-continuous",
+    "bert-binary",
+    "bert-continuous",
+)
 
 PAPER = {
     "ablation": "larger N_pn and N_a better on train and test; too large slows training; N_pn = 6, N_a = 4 sufficient "
     "(Fig. 7, kitchen, 4M steps)",
     "dataset-size": "10,000 tuples already give 76 %+ success, above every baseline (Fig. 13, kitchen)",
+    "aligned": "the aligned baselines improve on the plain ones but stay below TALAR in learning speed and final "
+    "score (Fig. 12, kitchen)",
 }
 
 
@@ -48,8 +61,8 @@ PAPER = {
 class StudyArgs:
     """Which study, over which settings, on the experiment settings every run shares."""
 
-    name: tyro.conf.Positional[Literal["ablation", "dataset-size"]]
-    """The study: ablation (Fig. 7) or dataset-size (Fig. 13)."""
+    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned"]]
+    """The study: ablation (Fig. 7), dataset-size (Fig. 13) or aligned (Fig. 12)."""
     experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(env="kitchen")
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe; ``--out`` defaults to runs/study-<name>-<env>)."""
@@ -66,7 +79,7 @@ class StudyArgs:
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
     """Label -> resolved experiment of every setting of the study (validated: one ValueError per bad input)."""
     base = args.experiment
-    if base.method != "talar":
+    if base.method != "talar" and args.name != "aligned":
         raise ValueError(f"the {args.name} study varies TALAR's task language; got --method {base.method}")
     if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
         raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
@@ -81,6 +94,9 @@ def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
                 spec = dataclasses.replace(talar.spec, num_predicates=predicates, num_arguments=arguments)
                 variant = dataclasses.replace(base, talar=dataclasses.replace(talar, spec=spec))
                 variants[f"npn{predicates}-na{arguments}"] = variant
+    elif args.name == "aligned":
+        for method in ALIGNED_METHODS:
+            variants[method] = dataclasses.replace(base, method=method)
     else:
         if not args.dataset_sizes or min(args.dataset_sizes) < 1:
             raise ValueError("--dataset-sizes needs positive sizes")
@@ -158,7 +174,11 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
             "ifp_env_steps_per_seed": steps,
             **provenance(),
             "settings": {
-                label: {"folder": str(config.out), "final_success": finals[label]["final_success"]}
+                label: {
+                    "folder": str(config.out),
+                    "method": config.method,
+                    "final_success": finals[label]["final_success"],
+                }
                 for label, config in configs.items()
             },
         },
@@ -174,7 +194,7 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
     finals = {}
     for index, (label, config) in enumerate(configs.items()):
         print(f"[study {args.name}] setting {index + 1}/{len(configs)}: {label} -> {config.out}", flush=True)
-        if args.name == "ablation" and index > 0:
+        if args.name in ("ablation", "aligned") and index > 0:
             share_oracle(first, config.out)
         finals[label] = run(config)
     print(write_outputs(args, configs, finals))

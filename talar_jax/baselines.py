@@ -4,6 +4,8 @@
 * BERT-binary / BERT-continuous: a dense layer on the frozen sentence embedding, made binary with a
   straight-through Bernoulli (reparameterisation) trick or left continuous, trained jointly with the policy by RL
   (``NLEncodingLayer``); the "pre-trained" variants first fit policy and layer by behaviour cloning.
+* Aligned BERT-binary / -continuous (Appendix E.3): the same, with the TL generator's architecture as the encoding
+  layer (``AlignedEncodingLayer``: N_a argument networks, then N_pn predicate networks reading the arguments).
 * GLA: a latent-action auto-encoder of state pairs (``LatentActionAutoencoder``); instructions are then
   translated into its binary latent code (``make_train_gla``).
 * Handcrafted: the translator trained to a one-hot of the goal instead of the generator's TL (``goal_one_hot``).
@@ -28,7 +30,7 @@ from talar_jax.networks import (
     update_observation_stats,
 )
 from talar_jax.optim import AdamFit
-from talar_jax.task_language import ReluMLP
+from talar_jax.task_language import ReluMLP, TaskLanguageSpec, gumbel_softmax
 
 
 def one_hot_table(num_instructions: int) -> np.ndarray:
@@ -61,6 +63,35 @@ class NLEncodingLayer(nn.Module):
     def __call__(self, sentence_embedding: jax.Array, rng: jax.Array | None = None) -> jax.Array:
         logits = nn.Dense(self.size)(sentence_embedding)
         return straight_through_bernoulli(logits, rng) if self.binary else jnp.tanh(logits)
+
+
+class AlignedEncodingLayer(nn.Module):
+    """Appendix E.3's "Aligned" encoding: the TL generator's networks (``TaskLanguageGenerator``) on the sentence
+    embedding instead of a state pair, trained by RL with the policy. Binary: straight-through one-hot arguments and
+    0/1 predicates, as the generator's; continuous: their softmax probabilities. Output layout as L_T's."""
+
+    spec: TaskLanguageSpec
+    hidden_sizes: Sequence[int] = (128, 128)
+    binary: bool = True
+
+    @nn.compact
+    def __call__(self, sentence_embedding: jax.Array, rng: jax.Array | None = None) -> jax.Array:
+        del rng  # deterministic, as BERT-binary's layer at acting time
+
+        def squash(logits):
+            return gumbel_softmax(logits, None) if self.binary else jax.nn.softmax(logits)
+
+        spec = self.spec
+        arguments = [
+            squash(ReluMLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(sentence_embedding))
+            for i in range(spec.num_arguments)
+        ]
+        predicate_input = jnp.concatenate([sentence_embedding, *arguments], axis=-1)
+        predicates = [
+            squash(ReluMLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input))[..., 1:]
+            for j in range(spec.num_predicates)
+        ]
+        return jnp.concatenate([*predicates, *arguments], axis=-1)
 
 
 class LatentActionAutoencoder(nn.Module):
@@ -115,7 +146,8 @@ def make_gla_codes(latent_size: int, observation_size: int):
 
 
 class EncodingLayerConditioner(Conditioner):
-    """BERT-binary / BERT-continuous: a trainable dense layer (``NLEncodingLayer``) on frozen sentence features.
+    """BERT-binary / BERT-continuous: a trainable dense layer (``NLEncodingLayer``) on frozen sentence features, or
+    with ``aligned`` the TL generator's architecture (``AlignedEncodingLayer``, the paper's "Aligned" baselines).
 
     Args:
         sentence_features: (num_instructions, D) the features of every instruction (the language cache's
@@ -123,11 +155,26 @@ class EncodingLayerConditioner(Conditioner):
         goal_sentences_by_split: as ``InstructionTableConditioner``.
         size: encoding size (|L_T| in the paper's comparison).
         binary: straight-through Bernoulli bits (BERT-binary) or a continuous layer (BERT-continuous).
+        aligned: None, or (task-language spec, hidden layers) of an ``AlignedEncodingLayer`` (``size`` must then be
+            the spec's).
     """
 
-    def __init__(self, sentence_features: Any, goal_sentences_by_split: Mapping, size: int, binary: bool):
+    def __init__(
+        self,
+        sentence_features: Any,
+        goal_sentences_by_split: Mapping,
+        size: int,
+        binary: bool,
+        aligned: tuple[TaskLanguageSpec, Sequence[int]] | None = None,
+    ):
         self.features = jnp.asarray(sentence_features, jnp.float32)
-        self.layer = NLEncodingLayer(size, binary)
+        if aligned is None:
+            self.layer = NLEncodingLayer(size, binary)
+        else:
+            spec, hidden = aligned
+            if spec.size != size:
+                raise ValueError(f"aligned encoding: size {size} differs from the task-language spec's {spec.size}")
+            self.layer = AlignedEncodingLayer(spec, tuple(hidden), binary)
         self.size = size
         self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.features))
 

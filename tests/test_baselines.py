@@ -3,8 +3,11 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from talar_jax.baselines import (
+    AlignedEncodingLayer,
+    EncodingLayerConditioner,
     NLEncodingLayer,
     goal_one_hot,
     make_gla_codes,
@@ -12,6 +15,7 @@ from talar_jax.baselines import (
     one_hot_table,
     straight_through_bernoulli,
 )
+from talar_jax.task_language import TaskLanguageGenerator, TaskLanguageSpec
 
 
 def test_straight_through_bernoulli_values_and_gradient():
@@ -35,6 +39,30 @@ def test_encoding_layer_and_tables():
             assert np.all(np.abs(np.asarray(out)) < 1)
     np.testing.assert_array_equal(one_hot_table(3), np.eye(3))
     np.testing.assert_array_equal(goal_one_hot(np.array([2, 0]), 3), [[0, 0, 1], [1, 0, 0]])
+
+
+def test_aligned_encoding_is_the_task_language_generator_on_the_sentence():
+    """Appendix E.3's Aligned baselines: with the same weights, the binary layer computes what the TL generator
+    computes for a 'state pair' that is the sentence embedding; the continuous one its softmax probabilities."""
+    spec = TaskLanguageSpec(num_predicates=3, num_arguments=2, arg_size=4)
+    x = jax.random.normal(jax.random.key(0), (5, 8))
+    binary = AlignedEncodingLayer(spec, (16, 16), binary=True)
+    params = binary.init(jax.random.key(1), x)
+    generator = TaskLanguageGenerator(spec, (16, 16))
+    np.testing.assert_array_equal(binary.apply(params, x), generator.apply(params, x, x[:, :0], None))
+    code = np.asarray(binary.apply(params, x))
+    assert code.shape == (5, spec.size) and set(np.unique(code).tolist()) <= {0.0, 1.0}
+    np.testing.assert_array_equal(code[:, spec.num_predicates :].reshape(5, 2, 4).sum(-1), 1.0)  # one-hot arguments
+    soft = np.asarray(AlignedEncodingLayer(spec, (16, 16), binary=False).apply(params, x))
+    assert np.all((soft > 0) & (soft < 1))
+    np.testing.assert_allclose(soft[:, spec.num_predicates :].reshape(5, 2, 4).sum(-1), 1.0, rtol=1e-5)
+    grads = jax.grad(lambda p: binary.apply(p, x).sum())(params)  # straight-through: every network gets a gradient
+    assert all(float(jnp.abs(g).sum()) > 0 for g in jax.tree.leaves(grads))
+
+    conditioner = EncodingLayerConditioner(x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size, True, aligned=(spec, (16, 16)))
+    assert isinstance(conditioner.layer, AlignedEncodingLayer)
+    with pytest.raises(ValueError, match="differs"):
+        EncodingLayerConditioner(x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size + 1, True, aligned=(spec, (16, 16)))
 
 
 def test_gla_autoencoder_learns_to_reconstruct_goal_dependent_changes():

@@ -25,6 +25,9 @@ def test_studies_vary_exactly_their_setting(tmp_path):
     sizes = study.settings(study.StudyArgs("dataset-size", base, dataset_sizes=(1000, 5000)))
     assert [c.num_tuples for c in sizes.values()] == [1000, 5000]
     assert len({c.talar for c in sizes.values()}) == 1
+    aligned = study.settings(study.StudyArgs("aligned", base))
+    assert [c.method for c in aligned.values()] == list(study.ALIGNED_METHODS)
+    assert len({(c.talar, c.ifp, c.num_tuples) for c in aligned.values()}) == 1  # only the method differs
 
 
 def test_study_outputs_state_their_budget(tmp_path):
