@@ -44,6 +44,7 @@ from talar_jax.stages import StageResult, run_stage, stable_hash
 from talar_jax.talar import (
     TaskLanguageData,
     make_generate_task_language,
+    make_train_end_to_end,
     make_train_task_language,
     make_train_translator,
     make_translate,
@@ -164,6 +165,10 @@ def method_stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: st
         return {"gla/autoencoder": gla, "gla/translator": translator_key(config, gla, "gla_translator")}
     if method == "onehot":
         return {"onehot": stable_hash("onehot", cache_key)}
+    if method == "end-to-end":
+        t = config.talar
+        fields = (t.referential_game_fields(), t.translator_hidden, config.sentence_readout, config.seeds, config.seed)
+        return {"end-to-end/joint": stable_hash("end-to-end", upstream_key, cache_key, *fields)}
     if method.startswith("pretrained-"):
         return {f"{method}/behaviour_cloning": behaviour_cloning_key(config, method, upstream_key, cache_key)}
     if method.startswith("bert-"):  # no stage of its own: the encoding's inputs
@@ -280,6 +285,36 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
     return _table_setup(ctx, rg, translator)
 
 
+def setup_end_to_end(ctx: MethodContext) -> MethodSetup:
+    """End-to-end TALAR (Appendix E.6): generator, receiver and translator trained jointly in one stage."""
+    config, cache, data = ctx.config, ctx.cache, ctx.data
+    ((stage_name, key),) = method_stage_keys(config, ctx.upstream_key, cache.key).items()
+
+    def body(stage_dir: Path) -> dict[str, Any]:
+        fit, timings = make_train_end_to_end(config.talar, cache.vocab_size, cache.max_tokens), {}
+        params, losses = fit_seeds(
+            fit,
+            ctx.seed_keys("end-to-end"),
+            prepare_referential_data(config.talar, data),
+            label="end-to-end/joint",
+            progress=config.progress,
+            timings=timings,
+        )
+        translate = jax.jit(jax.vmap(make_translate(config.talar), in_axes=(0, None)))
+        tables = np.asarray(translate(params["translator"], data.sentence_embeddings))
+        save_tree(stage_dir / "params.msgpack", params)
+        np.save(stage_dir / "tables.npy", tables)
+        quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
+        window = max(1, losses.shape[1] // 20)
+        return {
+            "joint_loss_end": losses[:, -window:].mean(1).tolist(),
+            "tl_quality": {k: [q[k] for q in quality] for k in quality[0]},
+            **timings,
+        }
+
+    return _table_setup(ctx, run_stage(config.out, stage_name, key, body))
+
+
 def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
     """Appendix E.7: the translator trained to a one-hot of the goal instead of the generator's TL."""
     spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=ctx.cache.num_goals)
@@ -366,6 +401,7 @@ METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
     "handcrafted": setup_handcrafted,
     "aligned-bert-binary": lambda ctx: _encoding_setup(ctx, binary=True, pretrained=False, aligned=True),
     "aligned-bert-continuous": lambda ctx: _encoding_setup(ctx, binary=False, pretrained=False, aligned=True),
+    "end-to-end": setup_end_to_end,
 }
 PAPER_COMPARISON: tuple[str, ...] = tuple(METHODS)[:8]
 """The eight methods of the paper's Fig. 4 (the Aligned baselines belong to Appendix E.3)."""
@@ -380,4 +416,5 @@ METHOD_LABELS: dict[str, str] = {
     "handcrafted": "Handcrafted",
     "aligned-bert-binary": "Aligned BERT-binary",
     "aligned-bert-continuous": "Aligned BERT-continuous",
+    "end-to-end": "End-to-end TALAR",
 }

@@ -9,13 +9,15 @@ NAME is one of
 * ``aligned`` (paper Fig. 12, Appendix E.3): TALAR against the BERT baselines whose encoding layer has the TL
   generator's architecture (``--method aligned-bert-binary`` / ``aligned-bert-continuous``) and the plain BERT-binary /
   BERT-continuous; the paper finds the aligned baselines better than the plain ones but below TALAR.
+* ``end-to-end`` (paper Fig. 15, Appendix E.6): TALAR against ``--method end-to-end`` (generator, receiver and
+  translator trained jointly); the paper finds the two-stage training better.
 
 Each setting is one experiment folder under ``--out`` (default ``runs/study-<name>-<env>``) with every stage cached,
 so an interrupted study resumes where it stopped. The ablation's settings share the first one's oracle and task
-dataset (a link to its ``oracle`` folder), as do the aligned study's methods; dataset sizes collect their own.
-Writes ``study.png`` (final success per
-setting, train and test instructions, mean ± std over seeds), ``study.md`` and ``summary.json`` (env, method, IFP env
-steps per seed, seeds, command and commit beside every setting's final success per seed).
+dataset (a link to its ``oracle`` folder), as do the methods of the aligned and end-to-end studies; dataset sizes
+collect their own. Writes ``study.png`` (final success per setting, train and test instructions, mean ± std over
+seeds), ``study.md`` and ``summary.json`` (env, method, IFP env steps per seed, seeds, command and commit beside every
+setting's final success per seed).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
 
-STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned")
+STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end")
 ALIGNED_METHODS: tuple[str, ...] = (
     "talar",
     "aligned-bert-binary",
@@ -47,11 +49,14 @@ ALIGNED_METHODS: tuple[str, ...] = (
     "bert-binary",
     "bert-continuous",
 )
+METHOD_STUDIES: dict[str, tuple[str, ...]] = {"aligned": ALIGNED_METHODS, "end-to-end": ("talar", "end-to-end")}
+"""Studies that compare methods (one setting per method) rather than TALAR's settings."""
 
 PAPER = {
     "ablation": "larger N_pn and N_a better on train and test; too large slows training; N_pn = 6, N_a = 4 sufficient "
     "(Fig. 7, kitchen, 4M steps)",
     "dataset-size": "10,000 tuples already give 76 %+ success, above every baseline (Fig. 13, kitchen)",
+    "end-to-end": "training the TL generator and the translator apart is better than jointly (Fig. 15, kitchen)",
     "aligned": "the aligned baselines improve on the plain ones but stay below TALAR in learning speed and final "
     "score (Fig. 12, kitchen)",
 }
@@ -61,8 +66,8 @@ PAPER = {
 class StudyArgs:
     """Which study, over which settings, on the experiment settings every run shares."""
 
-    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned"]]
-    """The study: ablation (Fig. 7), dataset-size (Fig. 13) or aligned (Fig. 12)."""
+    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned", "end-to-end"]]
+    """The study: ablation (Fig. 7), dataset-size (Fig. 13), aligned (Fig. 12) or end-to-end (Fig. 15)."""
     experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(env="kitchen")
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe; ``--out`` defaults to runs/study-<name>-<env>)."""
@@ -79,7 +84,7 @@ class StudyArgs:
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
     """Label -> resolved experiment of every setting of the study (validated: one ValueError per bad input)."""
     base = args.experiment
-    if base.method != "talar" and args.name != "aligned":
+    if base.method != "talar" and args.name not in METHOD_STUDIES:
         raise ValueError(f"the {args.name} study varies TALAR's task language; got --method {base.method}")
     if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
         raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
@@ -94,8 +99,8 @@ def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
                 spec = dataclasses.replace(talar.spec, num_predicates=predicates, num_arguments=arguments)
                 variant = dataclasses.replace(base, talar=dataclasses.replace(talar, spec=spec))
                 variants[f"npn{predicates}-na{arguments}"] = variant
-    elif args.name == "aligned":
-        for method in ALIGNED_METHODS:
+    elif args.name in METHOD_STUDIES:
+        for method in METHOD_STUDIES[args.name]:
             variants[method] = dataclasses.replace(base, method=method)
     else:
         if not args.dataset_sizes or min(args.dataset_sizes) < 1:
@@ -194,7 +199,7 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
     finals = {}
     for index, (label, config) in enumerate(configs.items()):
         print(f"[study {args.name}] setting {index + 1}/{len(configs)}: {label} -> {config.out}", flush=True)
-        if args.name in ("ablation", "aligned") and index > 0:
+        if (args.name == "ablation" or args.name in METHOD_STUDIES) and index > 0:
             share_oracle(first, config.out)
         finals[label] = run(config)
     print(write_outputs(args, configs, finals))

@@ -305,17 +305,27 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
     ``params = {"generator": ..., "receiver": ...}``; ``losses``: (rg_steps,) L_RG per step. ``max_tokens``
     (the longest instruction's token count) is needed with ``config.rg_all_tokens``.
     """
+    init_params, loss_and_rows = _referential_game(config, vocab_size, max_tokens)
+
+    def loss_fn(params, rng, data: TaskLanguageData):
+        return loss_and_rows(params, rng, data)[0]
+
+    return AdamFit(init_params, loss_fn, config.rg_learning_rate, config.rg_steps)
+
+
+def _referential_game(config: TalarConfig, vocab_size: int, max_tokens: int | None):
+    """``(init_params(rng, data), loss_and_rows(params, rng, data) -> (L_RG, the tuples the step drew))``."""
     generator, receiver = _generator(config), Receiver(vocab_size, config.receiver_hidden)
     if config.rg_all_tokens and (max_tokens is None or max_tokens < 1):
         raise ValueError("rg_all_tokens needs max_tokens, the token count of the longest instruction")
 
-    def loss_fn(params, rng, data: TaskLanguageData):
+    def loss_and_rows(params, rng, data: TaskLanguageData) -> tuple[jax.Array, jax.Array]:
         rng_batch, rng_prefix, rng_gumbel = jax.random.split(rng, 3)
         rows, prefix = sample_referential_batch(rng_batch, rng_prefix, data, config.referential_batch_size)
         task_language = generator.apply(params["generator"], data.states[rows], data.final_states[rows], rng_gumbel)
         if not config.rg_all_tokens:
             logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
-            return referential_game_loss(logits, data.prefix_next_token[prefix])
+            return referential_game_loss(logits, data.prefix_next_token[prefix]), rows
         prefix, mask = referential_token_rows(rows, data, max_tokens)
         if data.prefix_table.shape[0] < prefix.size:  # fewer distinct prefixes than rows: first layer per prefix
             logits = receiver_logits_per_prefix(
@@ -324,7 +334,7 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
         else:
             messages = jnp.broadcast_to(task_language[:, None, :], (*prefix.shape, task_language.shape[-1]))
             logits = receiver.apply(params["receiver"], messages, data.prefix_embeddings[prefix])
-        return referential_game_loss(logits, data.prefix_next_token[prefix], mask)
+        return referential_game_loss(logits, data.prefix_next_token[prefix], mask), rows
 
     def init_params(rng: jax.Array, data: TaskLanguageData):
         if config.receiver_prefix_dims and data.prefix_embeddings.shape[-1] != config.receiver_prefix_dims:
@@ -338,6 +348,35 @@ def make_train_task_language(config: TalarConfig, vocab_size: int, max_tokens: i
             "generator": generator.init(rng_generator, obs, obs, None),
             "receiver": receiver.init(rng_receiver, jnp.zeros((1, config.spec.size)), data.prefix_embeddings[:1]),
         }
+
+    return init_params, loss_and_rows
+
+
+def make_train_end_to_end(config: TalarConfig, vocab_size: int, max_tokens: int | None = None) -> AdamFit:
+    """End-to-end TALAR (paper Appendix E.6, Fig. 15): the generator, the receiver and the translator in one fit.
+
+    Each step adds to the referential game's L_RG the translator's Eq. 3 loss on the same tuples, whose target is the
+    generator's current deterministic TL of the tuple: the translator chases the language while the game shapes it.
+    The target's gradient is stopped: letting Eq. 3 reach the generator too collapsed its code to one constant on the
+    toy task of ``tests/test_task_language.py`` (a constant is what a translator predicts best), so the generator
+    learns from the game alone, as in the two-stage TALAR. One Adam at ``rg_learning_rate`` for ``rg_steps``.
+    ``params = {"generator", "receiver", "translator"}``; the two-stage TALAR is ``make_train_task_language`` then
+    ``make_train_translator``.
+    """
+    game_init, game_loss_and_rows = _referential_game(config, vocab_size, max_tokens)
+    generator, translator = _generator(config), Translator(config.spec, config.translator_hidden)
+
+    def loss_fn(params, rng, data: TaskLanguageData):
+        rg_loss, rows = game_loss_and_rows(params, rng, data)
+        target = generator.apply(params["generator"], data.states[rows], data.final_states[rows], None)
+        target = jax.lax.stop_gradient(target)
+        logits = translator.apply(params["translator"], data.sentence_embeddings[data.sentence_ids[rows]])
+        return rg_loss + translator_loss(config.spec, logits, target)
+
+    def init_params(rng: jax.Array, data: TaskLanguageData):
+        rng_game, rng_translator = jax.random.split(rng)
+        params = game_init(rng_game, data)
+        return {**params, "translator": translator.init(rng_translator, data.sentence_embeddings[:1])}
 
     return AdamFit(init_params, loss_fn, config.rg_learning_rate, config.rg_steps)
 

@@ -59,10 +59,14 @@ def test_aligned_encoding_is_the_task_language_generator_on_the_sentence():
     grads = jax.grad(lambda p: binary.apply(p, x).sum())(params)  # straight-through: every network gets a gradient
     assert all(float(jnp.abs(g).sum()) > 0 for g in jax.tree.leaves(grads))
 
-    conditioner = EncodingLayerConditioner(x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size, True, aligned=(spec, (16, 16)))
+    conditioner = EncodingLayerConditioner(
+        x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size, True, aligned=(spec, (16, 16))
+    )
     assert isinstance(conditioner.layer, AlignedEncodingLayer)
     with pytest.raises(ValueError, match="differs"):
-        EncodingLayerConditioner(x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size + 1, True, aligned=(spec, (16, 16)))
+        EncodingLayerConditioner(
+            x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size + 1, True, aligned=(spec, (16, 16))
+        )
 
 
 def test_gla_autoencoder_learns_to_reconstruct_goal_dependent_changes():

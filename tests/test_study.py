@@ -28,6 +28,8 @@ def test_studies_vary_exactly_their_setting(tmp_path):
     aligned = study.settings(study.StudyArgs("aligned", base))
     assert [c.method for c in aligned.values()] == list(study.ALIGNED_METHODS)
     assert len({(c.talar, c.ifp, c.num_tuples) for c in aligned.values()}) == 1  # only the method differs
+    joint = study.settings(study.StudyArgs("end-to-end", base))
+    assert [c.method for c in joint.values()] == ["talar", "end-to-end"]
 
 
 def test_study_outputs_state_their_budget(tmp_path):
