@@ -16,7 +16,7 @@ import tyro
 
 from experiments.compare import CompareArgs, compare, main_with
 from experiments.pipeline import ExperimentConfig
-from experiments.recipes import EXPERIMENT_TALAR
+from experiments.recipes import CLEVR_TALAR
 
 PAPER = {
     "TALAR": (100.0, 100.0, 99.9),
@@ -31,7 +31,7 @@ class PatternsArgs:
     """Table 3 settings."""
 
     experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(
-        env="clevr", out=Path("runs/patterns-clevr"), talar=EXPERIMENT_TALAR
+        env="clevr", out=Path("runs/patterns-clevr"), talar=CLEVR_TALAR
     )
     """The shared settings, as ``experiments.clevr`` takes them (one output folder: shared oracle, dataset and task
     language; ``--num-patterns`` and ``--method`` are set per row and column)."""

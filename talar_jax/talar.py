@@ -234,16 +234,12 @@ def prepare_referential_data(config: TalarConfig, data: TaskLanguageData) -> Tas
     """The referential game's view of ``data``: with ``config.receiver_prefix_dims = k``, every prefix embedding is
     replaced by its coordinates on the first k principal axes of ``data.prefix_table`` (the distinct prefixes of the
     task dataset's instructions, so only training sentences shape it), centred on their mean. The receiver's first
-    layer then multiplies k inputs instead of D. Without ``receiver_prefix_dims`` ``data`` is returned unchanged."""
-    dims = config.receiver_prefix_dims
-    if not dims:
+    layer then multiplies k inputs instead of D (k is capped at the number of distinct prefixes and at D, where the
+    projection is a rotation). Without ``receiver_prefix_dims`` ``data`` is returned unchanged."""
+    if not config.receiver_prefix_dims:
         return data
     table = np.asarray(data.prefix_table, np.float64)
-    if dims > min(table.shape):
-        raise ValueError(
-            f"receiver_prefix_dims={dims} exceeds the prefix table's rank bound {min(table.shape)} "
-            f"({table.shape[0]} distinct prefixes of {table.shape[1]} entries)"
-        )
+    dims = min(config.receiver_prefix_dims, *table.shape)  # no more axes than distinct prefixes or entries
     mean = table.mean(0)
     _, _, axes = np.linalg.svd(table - mean, full_matrices=False)
     basis = axes[:dims].T
@@ -337,7 +333,7 @@ def _referential_game(config: TalarConfig, vocab_size: int, max_tokens: int | No
         return referential_game_loss(logits, data.prefix_next_token[prefix], mask), rows
 
     def init_params(rng: jax.Array, data: TaskLanguageData):
-        if config.receiver_prefix_dims and data.prefix_embeddings.shape[-1] != config.receiver_prefix_dims:
+        if config.receiver_prefix_dims and data.prefix_embeddings.shape[-1] > config.receiver_prefix_dims:
             raise ValueError(
                 f"receiver_prefix_dims={config.receiver_prefix_dims} but the prefix embeddings have "
                 f"{data.prefix_embeddings.shape[-1]} entries: pass prepare_referential_data(config, data)"
