@@ -103,7 +103,12 @@ def main() -> None:
     seed_keys = jax.random.split(key, args.seeds)
     results = {}
     for count in args.paraphrases:
-        talar = dataclasses.replace(config.talar, translator_paraphrases=count, paraphrase_probability=args.probability)
+        talar = dataclasses.replace(
+            config.talar,
+            translator_paraphrases=count,
+            paraphrase_probability=args.probability,
+            paraphrase_unknown_words=args.unknown_words,
+        )
         variant = dataclasses.replace(config, talar=talar)
         ctx = MethodContext(variant, "", data, cache, dataset, None)
         start = time.perf_counter()
