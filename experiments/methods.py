@@ -108,6 +108,10 @@ class MethodContext:
         return lookups
 
 
+FIT_CHECKPOINT = "checkpoints/fit.msgpack"
+"""Where a supervised stage's fit saves its state after every piece (resumed while the stage's key holds)."""
+
+
 # ------------------------------------------------------------------------------------------------
 # Stage keys: each from the upstream keys and exactly the settings the stage reads (tests/test_stage_keys.py)
 # ------------------------------------------------------------------------------------------------
@@ -206,6 +210,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
             label=name,
             progress=config.progress,
             timings=timings,
+            checkpoint=stage_dir / FIT_CHECKPOINT,
         )
         translate = jax.jit(jax.vmap(make_translate(config.talar, spec), in_axes=(0, None)))
         tables = np.asarray(translate(params, data.sentence_embeddings))
@@ -264,6 +269,7 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
             label=label,
             progress=config.progress,
             timings=timings,
+            checkpoint=stage_dir / FIT_CHECKPOINT,
         )
         save_tree(stage_dir / "params.msgpack", params)
         np.save(stage_dir / "losses.npy", losses)
@@ -299,6 +305,7 @@ def setup_end_to_end(ctx: MethodContext) -> MethodSetup:
             label="end-to-end/joint",
             progress=config.progress,
             timings=timings,
+            checkpoint=stage_dir / FIT_CHECKPOINT,
         )
         translate = jax.jit(jax.vmap(make_translate(config.talar), in_axes=(0, None)))
         tables = np.asarray(translate(params["translator"], data.sentence_embeddings))
@@ -335,7 +342,13 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
     def gla_body(stage_dir: Path) -> dict[str, Any]:
         fit = make_train_gla(size, obs, config.talar.rg_steps, config.talar.batch_size, config.talar.rg_learning_rate)
         params, losses = fit_seeds(
-            fit, ctx.seed_keys("gla"), data.states, data.final_states, label="gla/autoencoder", progress=config.progress
+            fit,
+            ctx.seed_keys("gla"),
+            data.states,
+            data.final_states,
+            label="gla/autoencoder",
+            progress=config.progress,
+            checkpoint=stage_dir / FIT_CHECKPOINT,
         )
         save_tree(stage_dir / "params.msgpack", params)
         return {"reconstruction_mse_end": losses[:, -100:].mean(1).tolist()}
@@ -381,7 +394,9 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned:
             normalize_observations=config.ifp.normalize_observations,
         )
         label = f"{name}/behaviour cloning"
-        params, losses = fit_seeds(fit, ctx.seed_keys(name), label=label, progress=config.progress)
+        params, losses = fit_seeds(
+            fit, ctx.seed_keys(name), label=label, progress=config.progress, checkpoint=stage_dir / FIT_CHECKPOINT
+        )
         save_tree(stage_dir / "params.msgpack", params)
         return {"bc_nll_end": losses[:, -100:].mean(1).tolist()}
 

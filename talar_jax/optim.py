@@ -11,12 +11,16 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from flax import serialization
+
+from talar_jax.checkpoint import load_tree, save_tree
 
 
 class FitState(NamedTuple):
@@ -82,6 +86,7 @@ def fit_seeds(
     chunks: int = 10,
     progress: bool = True,
     timings: dict[str, float] | None = None,
+    checkpoint: str | Path | None = None,
 ) -> tuple[Any, np.ndarray]:
     """Runs ``fit`` for every seed (vmapped) in up to ``chunks`` jitted pieces, printing progress between them.
 
@@ -94,6 +99,9 @@ def fit_seeds(
         chunks: number of pieces (at most two distinct chunk lengths are compiled).
         progress: print a line after each piece.
         timings: if given, filled with ``compile_s`` (compiling the pieces) and ``run_s`` (running them).
+        checkpoint: a file the fit's state and losses are saved to after every piece and resumed from when it
+            exists (a stage's ``checkpoints/`` folder, kept while the stage's key is unchanged). Step ``i`` draws
+            ``fold_in(key, i)``, so a resumed fit ends where an uninterrupted one does.
 
     Returns:
         (seed-stacked final params, (seeds, steps) losses as numpy).
@@ -106,6 +114,14 @@ def fit_seeds(
     state = init(seed_keys, *inputs)
     chunk = -(-fit.steps // max(1, min(chunks, fit.steps)))
     losses, done, start, compile_s = [], 0, time.perf_counter(), 0.0
+    if checkpoint is not None and Path(checkpoint).is_file():
+        state, restored = _restore_fit(Path(checkpoint), state)
+        if restored.shape[1] <= fit.steps:
+            losses, done = [restored], restored.shape[1]
+            if progress:
+                print(f"{label}: resumed at step {done}/{fit.steps} from {checkpoint}", flush=True)
+        else:  # a longer fit's state: start again
+            state = init(seed_keys, *inputs)
     while done < fit.steps:
         steps = min(chunk, fit.steps - done)
         if steps not in runners:
@@ -116,6 +132,8 @@ def fit_seeds(
         state, chunk_losses = runners[steps](state, *inputs)
         losses.append(np.asarray(chunk_losses))
         done += steps
+        if checkpoint is not None:
+            _save_fit(Path(checkpoint), state, np.concatenate(losses, axis=1))
         if progress:
             recent = losses[-1][:, -max(1, steps // 10) :].mean()
             print(
@@ -126,3 +144,27 @@ def fit_seeds(
     if timings is not None:
         timings.update(compile_s=compile_s, run_s=time.perf_counter() - start - compile_s)
     return state.params, np.concatenate(losses, axis=1)
+
+
+def _is_key(x: Any) -> bool:
+    return jnp.issubdtype(jnp.asarray(x).dtype, jax.dtypes.prng_key)
+
+
+def _save_fit(path: Path, state: FitState, losses: np.ndarray) -> None:
+    """``state`` (typed PRNG keys as their raw data) and the (seeds, steps so far) losses, written atomically."""
+    raw = jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, state)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_tree(path, {"state": serialization.to_state_dict(raw), "losses": losses})
+
+
+def _restore_fit(path: Path, template: FitState) -> tuple[FitState, np.ndarray]:
+    """The state saved by ``_save_fit``, placed like ``template``'s leaves, and its losses."""
+    stored = load_tree(path)
+    raw_template = jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, template)
+    raw = serialization.from_state_dict(raw_template, stored["state"])
+
+    def place(like, value):
+        value = jax.random.wrap_key_data(value, impl=jax.random.key_impl(like)) if _is_key(like) else value
+        return jax.device_put(jnp.asarray(value, like.dtype), like.sharding)
+
+    return jax.tree.map(place, template, raw), np.asarray(stored["losses"])

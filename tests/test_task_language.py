@@ -1,5 +1,7 @@
 """TALAR's task language: Gumbel-softmax, generator/translator shapes and losses, and learning on a toy task."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -306,3 +308,24 @@ def test_chunked_fit_equals_one_scan_and_prints_progress(capsys):
     np.testing.assert_allclose(params, centres, atol=0.2)
     with pytest.raises(ValueError, match="1 inputs but 2 in_axes"):
         fit_seeds(fit, keys, centres, in_axes=(0, None))
+
+
+def test_an_interrupted_fit_resumes_from_its_checkpoint_and_ends_where_an_uninterrupted_one_does(tmp_path, capsys):
+    def loss(params, rng, centres):
+        return jnp.sum((params - centres - 0.1 * jax.random.normal(rng, params.shape)) ** 2)
+
+    fit = AdamFit(lambda rng, centres: jax.random.normal(rng, centres.shape), loss, 0.2, steps=60)
+    keys = jax.random.split(jax.random.key(3), 2)  # typed keys: the checkpoint stores their raw data
+    centres = jnp.array([[1.0, -2.0], [3.0, 0.5]])
+    whole_params, whole_losses = fit_seeds(fit, keys, centres, in_axes=(0,), chunks=3, progress=False)
+    checkpoint = tmp_path / "checkpoints" / "fit.msgpack"
+    # "interrupted" after 20 of the 60 steps: a fit of 20 steps leaves its state in the checkpoint
+    fit_seeds(dataclasses.replace(fit, steps=20), keys, centres, in_axes=(0,), chunks=1, checkpoint=checkpoint)
+    assert checkpoint.is_file()
+    capsys.readouterr()
+    params, losses = fit_seeds(fit, keys, centres, in_axes=(0,), chunks=3, checkpoint=checkpoint, label="toy")
+    out = capsys.readouterr().out
+    assert "resumed at step 20/60" in out and "step 40/60" in out
+    np.testing.assert_allclose(params, whole_params, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(losses, whole_losses, rtol=1e-5, atol=1e-6)
+    assert losses.shape == (2, 60)
