@@ -52,6 +52,7 @@ def test_study_outputs_state_their_budget(tmp_path):
     ("argv", "message"),
     [
         (["ablation", "--method", "onehot"], "varies TALAR's task language"),
+        (["end-to-end", "--method", "onehot"], "drop --method onehot"),
         (["ablation", "--predicates", "0"], "positive counts"),
         (["dataset-size", "--dataset-sizes", "0"], "positive sizes"),
         (["ablation", "--ifp-env-steps", "0"], "--ifp-env-steps must be >= 1"),
