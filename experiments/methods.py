@@ -74,6 +74,13 @@ class MethodSetup:
         return {k: v for stage in self.stages.values() for k, v in stage.summary.items()}
 
 
+def stage_seed_keys(seed: int, stage: str, seeds: int) -> jax.Array:
+    """(seeds,) keys of a stage of the run with base seed ``seed``, stable across processes (crc32 of the stage's
+    name, not Python's hash): what a script retraining a stage's fit needs to match the run."""
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), zlib.crc32(stage.encode()))
+    return jax.random.split(key, seeds)
+
+
 @dataclasses.dataclass(frozen=True)
 class MethodContext:
     """Inputs shared by every method of one experiment."""
@@ -94,9 +101,8 @@ class MethodContext:
         return {stage.path.relative_to(self.config.out).as_posix(): stage for stage in stages}
 
     def seed_keys(self, stage: str) -> jax.Array:
-        """(seeds,) keys of a stage, stable across processes (crc32 of the name, not Python's hash)."""
-        key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), zlib.crc32(stage.encode()))
-        return shard_seeds(jax.random.split(key, self.seeds), self.seeds)
+        """(seeds,) keys of a stage (``stage_seed_keys``), sharded over the devices."""
+        return shard_seeds(stage_seed_keys(self.config.seed, stage, self.seeds), self.seeds)
 
     def lookups(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """split -> (goal -> cache rows of its instructions, counts); CLEVR training may keep only k patterns."""

@@ -84,10 +84,10 @@ class StudyArgs:
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
     """Label -> resolved experiment of every setting of the study (validated: one ValueError per bad input)."""
     base = args.experiment
-    if base.method != "talar" and args.name not in METHOD_STUDIES:
+    if base.method != "talar":
+        if args.name in METHOD_STUDIES:
+            raise ValueError(f"the {args.name} study sets each setting's method itself; drop --method {base.method}")
         raise ValueError(f"the {args.name} study varies TALAR's task language; got --method {base.method}")
-    if base.method != "talar" and args.name in METHOD_STUDIES:
-        raise ValueError(f"the {args.name} study sets each setting's method itself; drop --method {base.method}")
     if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
         raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
     out = base.out if base.out is not None else Path(f"runs/study-{args.name}-{base.env}")

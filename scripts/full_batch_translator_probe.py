@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-import zlib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -26,6 +25,7 @@ configure()
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
+from experiments.methods import stage_seed_keys  # noqa: E402
 from experiments.recipes import get_recipe  # noqa: E402
 from talar_jax.checkpoint import load_tree  # noqa: E402
 from talar_jax.dataset import TaskDataset  # noqa: E402
@@ -54,8 +54,7 @@ def main() -> None:
     generator = load_tree(args.run / "talar" / "task_language" / "params.msgpack")["generator"]
     generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))
     targets = generate(generator, data.states, data.final_states)
-    key = jax.random.fold_in(jax.random.PRNGKey(0), zlib.crc32(b"talar/translator"))  # the stage's seed keys
-    keys = jax.random.split(key, args.seeds)
+    keys = stage_seed_keys(0, "talar/translator", args.seeds)  # the run's translator stage's (base seed 0)
     translate = jax.jit(jax.vmap(make_translate(config), in_axes=(0, None)))
     for steps in args.steps:
         fit = make_train_translator(dataclasses.replace(config, translator_full_batch=True, translator_steps=steps))

@@ -19,7 +19,6 @@ import argparse
 import dataclasses
 import json
 import time
-import zlib
 from pathlib import Path
 
 import jax
@@ -27,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from experiments.generalize import evaluate_seed
-from experiments.methods import MethodContext, paraphrased_data
+from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys
 from experiments.pipeline import default_config, make_task_language_data, resolve
 from talar_jax.agent import Agent
 from talar_jax.checkpoint import load_tree, save_tree
@@ -99,8 +98,7 @@ def main() -> None:
         "test": (features[test_rows], cache.goal_ids[test_rows]),
         "development": (dev_features, np.asarray(dev_goals)),
     }
-    key = jax.random.fold_in(jax.random.PRNGKey(config.seed), zlib.crc32(b"talar/translator"))
-    seed_keys = jax.random.split(key, args.seeds)
+    seed_keys = stage_seed_keys(config.seed, "talar/translator", args.seeds)
     results = {}
     for count in args.paraphrases:
         talar = dataclasses.replace(

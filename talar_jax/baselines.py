@@ -30,7 +30,7 @@ from talar_jax.networks import (
     update_observation_stats,
 )
 from talar_jax.optim import AdamFit
-from talar_jax.task_language import ReluMLP, TaskLanguageSpec, gumbel_softmax
+from talar_jax.task_language import ReluMLP, TaskLanguageGenerator, TaskLanguageSpec
 
 
 def one_hot_table(num_instructions: int) -> np.ndarray:
@@ -65,33 +65,15 @@ class NLEncodingLayer(nn.Module):
         return straight_through_bernoulli(logits, rng) if self.binary else jnp.tanh(logits)
 
 
-class AlignedEncodingLayer(nn.Module):
-    """Appendix E.3's "Aligned" encoding: the TL generator's networks (``TaskLanguageGenerator``) on the sentence
-    embedding instead of a state pair, trained by RL with the policy. Binary: straight-through one-hot arguments and
-    0/1 predicates, as the generator's; continuous: their softmax probabilities. Output layout as L_T's."""
+class AlignedEncodingLayer(TaskLanguageGenerator):
+    """Appendix E.3's "Aligned" encoding: the TL generator's networks on the sentence embedding instead of a state
+    pair (call it with the embedding alone), trained by RL with the policy. Binary: straight-through one-hot
+    arguments and 0/1 predicates, as the generator's; continuous: their softmax probabilities."""
 
-    spec: TaskLanguageSpec
-    hidden_sizes: Sequence[int] = (128, 128)
     binary: bool = True
 
-    @nn.compact
-    def __call__(self, sentence_embedding: jax.Array, rng: jax.Array | None = None) -> jax.Array:
-        del rng  # deterministic, as BERT-binary's layer at acting time
-
-        def squash(logits):
-            return gumbel_softmax(logits, None) if self.binary else jax.nn.softmax(logits)
-
-        spec = self.spec
-        arguments = [
-            squash(ReluMLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(sentence_embedding))
-            for i in range(spec.num_arguments)
-        ]
-        predicate_input = jnp.concatenate([sentence_embedding, *arguments], axis=-1)
-        predicates = [
-            squash(ReluMLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input))[..., 1:]
-            for j in range(spec.num_predicates)
-        ]
-        return jnp.concatenate([*predicates, *arguments], axis=-1)
+    def discrete(self) -> bool:
+        return self.binary
 
 
 class LatentActionAutoencoder(nn.Module):
@@ -174,7 +156,7 @@ class EncodingLayerConditioner(Conditioner):
             spec, hidden = aligned
             if spec.size != size:
                 raise ValueError(f"aligned encoding: size {size} differs from the task-language spec's {spec.size}")
-            self.layer = AlignedEncodingLayer(spec, tuple(hidden), binary)
+            self.layer = AlignedEncodingLayer(spec, tuple(hidden), binary=binary)
         self.size = size
         self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.features))
 

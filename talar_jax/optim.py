@@ -150,9 +150,14 @@ def _is_key(x: Any) -> bool:
     return jnp.issubdtype(jnp.asarray(x).dtype, jax.dtypes.prng_key)
 
 
+def _raw_keys(tree: Any) -> Any:
+    """``tree`` with typed PRNG keys replaced by their raw data (what msgpack can store)."""
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
 def _save_fit(path: Path, state: FitState, losses: np.ndarray) -> None:
     """``state`` (typed PRNG keys as their raw data) and the (seeds, steps so far) losses, written atomically."""
-    raw = jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, state)
+    raw = _raw_keys(state)
     path.parent.mkdir(parents=True, exist_ok=True)
     save_tree(path, {"state": serialization.to_state_dict(raw), "losses": losses})
 
@@ -160,8 +165,7 @@ def _save_fit(path: Path, state: FitState, losses: np.ndarray) -> None:
 def _restore_fit(path: Path, template: FitState) -> tuple[FitState, np.ndarray]:
     """The state saved by ``_save_fit``, placed like ``template``'s leaves, and its losses."""
     stored = load_tree(path)
-    raw_template = jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, template)
-    raw = serialization.from_state_dict(raw_template, stored["state"])
+    raw = serialization.from_state_dict(_raw_keys(template), stored["state"])
 
     def place(like, value):
         value = jax.random.wrap_key_data(value, impl=jax.random.key_impl(like)) if _is_key(like) else value

@@ -84,31 +84,42 @@ class TaskLanguageGenerator(nn.Module):
     hidden_sizes: Sequence[int] = (128, 128)
     temperature: float = 1.0
 
+    def discrete(self) -> bool:
+        """True: straight-through one-hot outputs (L_T); False: their softmax probabilities (see the Aligned
+        baselines' ``AlignedEncodingLayer``)."""
+        return True
+
     @nn.compact
-    def __call__(self, state: jax.Array, next_state: jax.Array, rng: jax.Array | None = None) -> jax.Array:
-        """Args: state, next_state (..., obs); rng: Gumbel noise key, None for the deterministic TL.
+    def __call__(
+        self, state: jax.Array, next_state: jax.Array | None = None, rng: jax.Array | None = None
+    ) -> jax.Array:
+        """Args: state, next_state (..., obs) (None: the networks read ``state`` alone); rng: Gumbel noise key, None
+        for the deterministic TL.
 
         Returns: L_T (..., spec.size) with values in {0, 1}.
         """
-        pair = jnp.concatenate([state, next_state], axis=-1)
+        pair = state if next_state is None else jnp.concatenate([state, next_state], axis=-1)
         spec = self.spec
         keys = (
             list(jax.random.split(rng, spec.num_arguments + spec.num_predicates))
             if rng is not None
             else [None] * (spec.num_arguments + spec.num_predicates)
         )
+
+        def squash(logits, key):
+            if self.discrete():
+                return gumbel_softmax(logits, key, self.temperature)
+            return jax.nn.softmax(logits / self.temperature, axis=-1)
+
         arguments = [
-            gumbel_softmax(
-                ReluMLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(pair), keys[i], self.temperature
-            )
+            squash(ReluMLP((*self.hidden_sizes, spec.arg_size), name=f"argument_net_{i}")(pair), keys[i])
             for i in range(spec.num_arguments)
         ]
         predicate_input = jnp.concatenate([pair, *arguments], axis=-1)
         predicates = [
-            gumbel_softmax(
+            squash(
                 ReluMLP((*self.hidden_sizes, 2), name=f"predicate_net_{j}")(predicate_input),
                 keys[spec.num_arguments + j],
-                self.temperature,
             )[..., 1:]
             for j in range(spec.num_predicates)
         ]
