@@ -6,7 +6,8 @@ Times ``--steps`` jitted steps (5 seeds vmapped, compile apart) of the env recip
 on a task dataset, in the layout the fits choose (the receiver's first layer once per distinct prefix and the
 translator once per distinct sentence, when those are fewer than the rows of a step) and in the per-row layout,
 side by side in one process; with ``--prefix-dims k`` also the chosen layout of the game whose receiver reads the
-prefixes' first k principal components (``TalarConfig.receiver_prefix_dims``). Prints a table and writes
+prefixes' first k principal components (``TalarConfig.receiver_prefix_dims``), and with ``--token-slots K`` the game
+reading at most K token slots per tuple (``TalarConfig.rg_token_slots``; 0: every slot). Prints a table and writes
 ``benchmarks/results/supervised_layouts_<env>.json``.
 """
 
@@ -62,10 +63,18 @@ def main() -> None:
     parser.add_argument(
         "--prefix-dims", type=int, nargs="*", default=[32], help="also time the game with receiver_prefix_dims = each"
     )
+    parser.add_argument(
+        "--token-slots",
+        type=int,
+        nargs="*",
+        default=[0],
+        help="also time the game with rg_token_slots = each (0: every token slot of the longest instruction)",
+    )
     args = parser.parse_args()
     cache = build_cache(args.env, progress=False)
-    data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
+    raw_data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
     config = get_recipe(args.env).talar
+    data = prepare_referential_data(config, raw_data)  # the recipe's game view (the translator reads the same data)
     rows = config.referential_batch_size * cache.max_tokens
     # the per-row layout: tables at least as large as a step's rows make the fits take the per-row branch
     per_row = data._replace(
@@ -91,11 +100,21 @@ def main() -> None:
     for dims in args.prefix_dims:
         projected_config = dataclasses.replace(config, receiver_prefix_dims=dims)
         fit = make_train_task_language(projected_config, cache.vocab_size, cache.max_tokens)
-        projected = time_fit(fit, prepare_referential_data(projected_config, data), (), args.seeds, args.steps)
+        projected = time_fit(fit, prepare_referential_data(projected_config, raw_data), (), args.seeds, args.steps)
         rg[f"prefix_dims_{dims}_ms_per_step"] = 1000 * projected
         print(
             f"{args.env} referential game, receiver_prefix_dims={dims}: {1000 * projected:.1f} ms/step "
             f"({rg['chosen_ms_per_step'] / 1000 / projected:.2f}x faster than the whole embedding)",
+            flush=True,
+        )
+    for slots in args.token_slots:
+        slotted_config = dataclasses.replace(config, rg_token_slots=slots or None)
+        fit = make_train_task_language(slotted_config, cache.vocab_size, cache.max_tokens)
+        slotted = time_fit(fit, data, (), args.seeds, args.steps)
+        rg[f"token_slots_{slots}_ms_per_step"] = 1000 * slotted
+        print(
+            f"{args.env} referential game, rg_token_slots={slots or 'every slot'}: {1000 * slotted:.1f} ms/step "
+            f"(recipe: {config.rg_token_slots or 'every slot'}, {rg['chosen_ms_per_step']:.1f} ms/step)",
             flush=True,
         )
     sizes = {

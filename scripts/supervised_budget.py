@@ -54,6 +54,7 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--receiver-prefix-dims", type=int, default=None, help="TalarConfig.receiver_prefix_dims")
     parser.add_argument("--receiver-hidden", type=int, nargs="+", default=None, help="TalarConfig.receiver_hidden")
+    parser.add_argument("--rg-token-slots", type=int, default=None, help="TalarConfig.rg_token_slots")
     args = parser.parse_args()
     recipe = get_recipe(args.env)
     cache = build_cache(args.env, progress=False)
@@ -63,6 +64,8 @@ def main() -> None:
         config = dataclasses.replace(config, receiver_prefix_dims=args.receiver_prefix_dims)
     if args.receiver_hidden:
         config = dataclasses.replace(config, receiver_hidden=tuple(args.receiver_hidden))
+    if args.rg_token_slots:
+        config = dataclasses.replace(config, rg_token_slots=args.rg_token_slots)
     rg_data = prepare_referential_data(config, data)
     fit = make_train_task_language(config, cache.vocab_size, cache.max_tokens)
     keys = jax.random.split(jax.random.key(args.seed), args.seeds)

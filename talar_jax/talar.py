@@ -63,6 +63,12 @@ class TalarConfig:
     rg_all_tokens: bool = False
     """Eq. 2's expectation over T_i computed exactly (every token of each tuple's instruction, one message per
     tuple) instead of one sampled token per tuple: same objective, lower-variance gradient."""
+    rg_token_slots: int | None = None
+    """With ``rg_all_tokens``: at most this many of a tuple's tokens per step instead of the longest instruction's
+    count. Instructions with more tokens contribute a systematic sample of them (K evenly spaced positions from a
+    random start, each token drawn with probability K / count), shorter ones every token, so the per-tuple mean NLL
+    stays an unbiased estimate of Eq. 2's expectation over T_i while padding slots (and their receiver rows) go.
+    None: every token slot of the longest instruction."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
     translator_full_batch: bool = False
@@ -97,6 +103,7 @@ class TalarConfig:
             "referential_batch_size": self.referential_batch_size,
             "rg_steps": self.rg_steps,
             "rg_all_tokens": self.rg_all_tokens,
+            **({"rg_token_slots": self.rg_token_slots} if self.rg_token_slots else {}),
         }
 
     def translator_fields(self) -> dict[str, Any]:
@@ -119,7 +126,14 @@ class TalarConfig:
         }
 
     def __post_init__(self):
-        for name in ("batch_size", "rg_steps", "translator_steps", "rg_batch_size", "receiver_prefix_dims"):
+        for name in (
+            "batch_size",
+            "rg_steps",
+            "translator_steps",
+            "rg_batch_size",
+            "receiver_prefix_dims",
+            "rg_token_slots",
+        ):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.translator_paraphrases < 0 or not 0.0 <= self.paraphrase_probability <= 1.0:
@@ -264,14 +278,31 @@ def sample_referential_batch(
     return rows, data.sentence_prefix_start[sentences] + offset
 
 
-def referential_token_rows(rows: jax.Array, data: TaskLanguageData, max_tokens: int) -> tuple[jax.Array, jax.Array]:
-    """(prefix, mask), both (B, max_tokens): every prefix row T_1..T_{i-1} of each tuple's instruction, and which
-    of the ``max_tokens`` slots are real tokens (instructions shorter than ``max_tokens`` are padded)."""
+def referential_token_rows(
+    rows: jax.Array, data: TaskLanguageData, max_tokens: int, rng: jax.Array | None = None, slots: int | None = None
+) -> tuple[jax.Array, jax.Array]:
+    """(prefix, mask), both (B, T): prefix rows T_1..T_{i-1} of each tuple's instruction, and which of the T slots
+    are real tokens (instructions shorter than T are padded).
+
+    Without ``slots`` (or with ``slots >= max_tokens``) T = ``max_tokens`` and every token is listed. With
+    ``slots = K < max_tokens`` T = K: an instruction of c > K tokens lists the systematic sample
+    ``floor((k + u) c / K)``, k = 0..K-1, u ~ U[0, 1) per tuple (``rng``), which draws each token with probability
+    K / c, so the mean over the K slots is an unbiased estimate of the mean over the c tokens; c <= K lists all."""
     sentences = data.sentence_ids[rows]
-    offsets = jnp.arange(max_tokens)
-    mask = offsets[None, :] < data.sentence_prefix_count[sentences][:, None]
-    prefix = data.sentence_prefix_start[sentences][:, None] + jnp.where(mask, offsets[None, :], 0)
-    return prefix, mask
+    counts = data.sentence_prefix_count[sentences][:, None]
+    starts = data.sentence_prefix_start[sentences][:, None]
+    if slots is None or slots >= max_tokens:
+        offsets = jnp.arange(max_tokens)[None, :]
+        mask = offsets < counts
+        return starts + jnp.where(mask, offsets, 0), mask
+    if rng is None:
+        raise ValueError("referential_token_rows with slots needs rng for the systematic sample")
+    offsets = jnp.arange(slots)[None, :]
+    start = jax.random.uniform(rng, counts.shape)
+    sampled = jnp.floor((offsets + start) * counts / slots).astype(jnp.int32)
+    long = counts > slots
+    mask = long | (offsets < counts)
+    return starts + jnp.where(long, jnp.minimum(sampled, counts - 1), jnp.where(mask, offsets, 0)), mask
 
 
 def decodable_fraction(codes: np.ndarray, labels: np.ndarray, vote: np.ndarray, score: np.ndarray) -> float:
@@ -322,7 +353,8 @@ def _referential_game(config: TalarConfig, vocab_size: int, max_tokens: int | No
         if not config.rg_all_tokens:
             logits = receiver.apply(params["receiver"], task_language, data.prefix_embeddings[prefix])
             return referential_game_loss(logits, data.prefix_next_token[prefix]), rows
-        prefix, mask = referential_token_rows(rows, data, max_tokens)
+        # rng_prefix drew the one-token prefix above, unused here: it draws the systematic sample's start instead
+        prefix, mask = referential_token_rows(rows, data, max_tokens, rng_prefix, config.rg_token_slots)
         if data.prefix_table.shape[0] < prefix.size:  # fewer distinct prefixes than rows: first layer per prefix
             logits = receiver_logits_per_prefix(
                 params["receiver"], task_language, data.prefix_table, data.prefix_table_index[prefix]

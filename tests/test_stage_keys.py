@@ -72,6 +72,7 @@ RG_READS = {
     "talar.rg_batch_size",
     "talar.rg_steps",
     "talar.rg_all_tokens",
+    "talar.rg_token_slots",
 }  # quick: its smoke budgets shorten the game
 TRANSLATOR_READS = RG_READS | {
     "sentence_readout",

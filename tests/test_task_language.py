@@ -17,6 +17,7 @@ from talar_jax.talar import (
     make_train_translator,
     make_translate,
     prepare_referential_data,
+    referential_token_rows,
     sample_referential_batch,
     task_language_quality,
     with_paraphrases,
@@ -162,6 +163,38 @@ def test_all_tokens_referential_loss_is_the_mean_over_each_instructions_tokens()
         expected.append(np.mean(per_token))
     assert len(set(counts[np.asarray(data.sentence_ids[rows])])) == 2  # the batch mixes both lengths
     np.testing.assert_allclose(loss, np.mean(expected), rtol=1e-5)
+    # two token slots hold every token of these instructions: the same loss without the padding slot
+    slotted = make_train_task_language(dataclasses.replace(config, rg_token_slots=2), vocab, max_tokens=3)
+    np.testing.assert_allclose(float(slotted.loss(params, rng, data)), loss, rtol=1e-5)
+
+
+def test_token_slots_draw_each_token_with_probability_slots_over_count():
+    """rg_token_slots = K: an instruction of c > K tokens lists K distinct tokens, each drawn with probability K / c
+    (so the slot mean is unbiased for the token mean); one of c <= K tokens lists every token once."""
+    data, _, _, _ = _toy_data(tuples=8)
+    counts = np.array([7, 2] * (len(data.sentence_prefix_count) // 2), np.int32)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
+    data = data._replace(
+        sentence_prefix_count=jnp.asarray(counts),
+        sentence_prefix_start=jnp.asarray(starts),
+        sentence_ids=jnp.asarray([0, 1], jnp.int32),  # tuple 0 reads sentence 0 (7 tokens), tuple 1 sentence 1 (2)
+    )
+    rows = jnp.arange(2)
+    draws = 20_000
+    prefix, mask = jax.vmap(lambda key: referential_token_rows(rows, data, 7, key, slots=3))(
+        jax.random.split(jax.random.key(0), draws)
+    )
+    prefix, mask = np.asarray(prefix), np.asarray(mask)
+    assert prefix.shape == mask.shape == (draws, 2, 3)
+    long_rows = prefix[:, 0] - starts[0]  # the 7-token instruction
+    assert mask[:, 0].all() and ((long_rows >= 0) & (long_rows < 7)).all()
+    assert (np.diff(np.sort(long_rows, axis=1), axis=1) > 0).all()  # K distinct tokens
+    frequency = np.bincount(long_rows.reshape(-1), minlength=7) / draws
+    np.testing.assert_allclose(frequency, 3 / 7, atol=0.02)
+    np.testing.assert_array_equal(mask[:, 1], [[True, True, False]] * draws)  # the 2-token one: both, then padding
+    np.testing.assert_array_equal(prefix[:, 1, :2] - starts[1], [[0, 1]] * draws)
+    with pytest.raises(ValueError, match="rng"):
+        referential_token_rows(rows, data, 7, None, slots=3)
 
 
 def test_per_prefix_receiver_and_per_sentence_translator_equal_the_per_row_networks():
