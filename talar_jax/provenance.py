@@ -26,6 +26,12 @@ def git_commit(folder: str | Path | None = None) -> str | None:
     return commit.stdout.strip() + ("-dirty" if status.stdout.strip() else "")
 
 
+# Read once, when the process imports this module (the entry points do so at start): a long run whose checkout moves on
+# while it trains (a commit, an edit) still names the code it imported.
+PROCESS_COMMIT = git_commit()
+
+
 def provenance() -> dict[str, str | None]:
-    """``{"command": ..., "commit": ...}`` of the running process."""
-    return {"command": "python " + shlex.join(sys.argv), "commit": git_commit()}
+    """``{"command": ..., "commit": ...}`` of the running process; the commit is the one checked out when the process
+    started (``PROCESS_COMMIT``), not the one at the time of the call."""
+    return {"command": "python " + shlex.join(sys.argv), "commit": PROCESS_COMMIT}

@@ -35,3 +35,13 @@ def test_stage_reuse_rerun_and_interrupt(tmp_path):
 def test_stable_hash_depends_on_content_only():
     assert stable_hash({"a": 1, "b": (2, 3)}) == stable_hash({"b": [2, 3], "a": 1})
     assert stable_hash({"a": 1}) != stable_hash({"a": 2})
+
+
+def test_provenance_names_the_commit_the_process_started_on(monkeypatch):
+    """A run that outlives a checkout change (a commit made while it trains) still names the code it imported."""
+    from talar_jax import provenance as provenance_module
+
+    started = provenance_module.PROCESS_COMMIT
+    assert started == provenance_module.git_commit()  # the checkout has not moved during the test
+    monkeypatch.setattr(provenance_module, "git_commit", lambda folder=None: "0" * 40 + "-dirty")
+    assert provenance_module.provenance()["commit"] == started
