@@ -180,9 +180,9 @@ KITCHEN_IFP = dataclasses.replace(EXPERIMENT_IFP, total_env_steps=4_000_000)
 # gives the six sub-tasks six distinct codes (distinct_goal_codes 1.0, decodable 1.0 train / 0.997 test; translator
 # 2k steps = 10k steps); at 2k RG steps 0.867; the 20k-step run of results/kitchen-talar-5seeds-4M (other seeds): 0.933.
 # Each step reads at most 16 of a tuple's tokens (TalarConfig.rg_token_slots; kitchen instructions have 13.7 tokens on
-# average and up to 25, so a quarter of the all-token layout's receiver rows were padding): 30 against 45.5 ms per
-# step for 5 seeds (one process, 2-core CPU), and at 5k steps the same TL (distinct goal codes 1.0, decodable 1.0 /
-# 1.0; results/supervised-budget/README.md).
+# average and up to 25, so about 45 % of the all-token layout's receiver rows were padding): 1.1-1.6x cheaper steps
+# for 5 seeds (four timings on this noisy 2-core CPU, each in one process), and at 5k steps the same TL (distinct goal
+# codes 1.0, decodable 1.0 / 1.0; results/supervised-budget/README.md).
 KITCHEN_TALAR = dataclasses.replace(EXPERIMENT_TALAR, rg_steps=5_000, translator_steps=2_000, rg_token_slots=16)
 # The posture term's targets: the scripted controller's postures at success instead of TALAR's hard-coded ones
 # (README, "Kitchen reward"; the measurements are in the KitchenConfig docstring and results/).
