@@ -290,19 +290,18 @@ def referential_token_rows(
     K / c, so the mean over the K slots is an unbiased estimate of the mean over the c tokens; c <= K lists all."""
     sentences = data.sentence_ids[rows]
     counts = data.sentence_prefix_count[sentences][:, None]
-    starts = data.sentence_prefix_start[sentences][:, None]
-    if slots is None or slots >= max_tokens:
-        offsets = jnp.arange(max_tokens)[None, :]
-        mask = offsets < counts
-        return starts + jnp.where(mask, offsets, 0), mask
-    if rng is None:
-        raise ValueError("referential_token_rows with slots needs rng for the systematic sample")
-    offsets = jnp.arange(slots)[None, :]
-    start = jax.random.uniform(rng, counts.shape)
-    sampled = jnp.floor((offsets + start) * counts / slots).astype(jnp.int32)
-    long = counts > slots
-    mask = long | (offsets < counts)
-    return starts + jnp.where(long, jnp.minimum(sampled, counts - 1), jnp.where(mask, offsets, 0)), mask
+    width = min(slots or max_tokens, max_tokens)
+    offsets = jnp.arange(width)[None, :]
+    positions = offsets
+    if width < max_tokens:
+        if rng is None:
+            raise ValueError("referential_token_rows with slots needs rng for the systematic sample")
+        start = jax.random.uniform(rng, counts.shape)
+        sampled = jnp.floor((offsets + start) * counts / width).astype(jnp.int32)
+        # float32 rounding can reach c itself when u is within 2^-24 of 1
+        positions = jnp.where(counts > width, jnp.minimum(sampled, counts - 1), offsets)
+    mask = offsets < counts  # every slot of an instruction longer than ``width`` is real
+    return data.sentence_prefix_start[sentences][:, None] + jnp.where(mask, positions, 0), mask
 
 
 def decodable_fraction(codes: np.ndarray, labels: np.ndarray, vote: np.ndarray, score: np.ndarray) -> float:
