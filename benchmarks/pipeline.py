@@ -55,11 +55,11 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
     ifp_compile = next((row["train/compile_s"] for row in metrics if "train/compile_s" in row), 0.0)
     stages["ifp"]["compile_s"] = ifp_compile
     # Full budget: training chunks at the steady rate (the first chunk left out) plus the evaluations the full run
-    # makes at the measured cost of one (the first evaluation, which compiles, left out when there are others).
+    # makes at the measured cost of one (evaluations compile with the training program, before the first chunk).
     steady = [row["train/sps"] for row in metrics[1:]] or [metrics[0]["train/sps"]]
     train_full_s = full_steps * seeds / float(np.mean(steady))
     evals = [row["eval/seconds"] for row in metrics if "eval/seconds" in row]
-    eval_s = float(np.mean(evals[1:] or evals)) if evals else 0.0
+    eval_s = float(np.mean(evals)) if evals else 0.0
     evals_full = -(-(full_steps // sizes.env_steps_per_chunk) // base.ifp.eval_every_chunks)
     ifp_full_s = train_full_s + evals_full * eval_s
     batch = base.ifp.num_envs * seeds

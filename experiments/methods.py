@@ -154,8 +154,8 @@ def behaviour_cloning_key(config: ExperimentConfig, name: str, upstream_key: str
         config.ifp.hidden_sizes,
         config.ifp.normalize_observations,
         t.batch_size,
-        t.translator_learning_rate,
-        t.translator_steps,
+        t.bc_learning_rate,
+        t.bc_steps,
         config.seeds,
         config.seed,
     )
@@ -395,8 +395,8 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned:
             ctx.dataset,
             config.ifp.hidden_sizes,
             t.batch_size,
-            t.translator_learning_rate,
-            t.translator_steps,
+            t.bc_learning_rate,
+            t.bc_steps,
             normalize_observations=config.ifp.normalize_observations,
         )
         label = f"{name}/behaviour cloning"

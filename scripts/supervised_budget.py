@@ -55,6 +55,20 @@ def main() -> None:
     parser.add_argument("--receiver-prefix-dims", type=int, default=None, help="TalarConfig.receiver_prefix_dims")
     parser.add_argument("--receiver-hidden", type=int, nargs="+", default=None, help="TalarConfig.receiver_hidden")
     parser.add_argument("--rg-token-slots", type=int, default=None, help="TalarConfig.rg_token_slots")
+    parser.add_argument("--rg-learning-rate", type=float, default=None, help="TalarConfig.rg_learning_rate")
+    parser.add_argument(
+        "--translator-learning-rates",
+        type=float,
+        nargs="+",
+        default=None,
+        help="TalarConfig.translator_learning_rate values to try at every translator budget (default: the recipe's)",
+    )
+    parser.add_argument(
+        "--translators",
+        nargs="+",
+        default=None,
+        help="STEPS@LR translator budgets to try instead of --translator-steps x --translator-learning-rates",
+    )
     args = parser.parse_args()
     recipe = get_recipe(args.env)
     cache = build_cache(args.env, progress=False)
@@ -66,6 +80,8 @@ def main() -> None:
         config = dataclasses.replace(config, receiver_hidden=tuple(args.receiver_hidden))
     if args.rg_token_slots:
         config = dataclasses.replace(config, rg_token_slots=args.rg_token_slots)
+    if args.rg_learning_rate:
+        config = dataclasses.replace(config, rg_learning_rate=args.rg_learning_rate)
     rg_data = prepare_referential_data(config, data)
     fit = make_train_task_language(config, cache.vocab_size, cache.max_tokens)
     keys = jax.random.split(jax.random.key(args.seed), args.seeds)
@@ -82,9 +98,19 @@ def main() -> None:
         rg_seconds += time.perf_counter() - start
         done = milestone
         targets = generate(state.params["generator"], data.states, data.final_states)
-        for translator_steps in args.translator_steps:
+        budgets = [
+            (steps, rate)
+            for steps in args.translator_steps
+            for rate in args.translator_learning_rates or [config.translator_learning_rate]
+        ]
+        if args.translators:
+            budgets = [(int(b.split("@")[0]), float(b.split("@")[1])) for b in args.translators]
+        for translator_steps, translator_rate in budgets:
             timings: dict[str, float] = {}
-            translator_fit = make_train_translator(dataclasses.replace(config, translator_steps=translator_steps))
+            translator_config = dataclasses.replace(
+                config, translator_steps=translator_steps, translator_learning_rate=translator_rate
+            )
+            translator_fit = make_train_translator(translator_config)
             params, _ = fit_seeds(
                 translator_fit, keys, targets, data, in_axes=(0, None), progress=False, timings=timings
             )
@@ -93,6 +119,7 @@ def main() -> None:
             row = {
                 "rg_steps": milestone,
                 "translator_steps": translator_steps,
+                "translator_learning_rate": translator_rate,
                 "rg_loss_end": float(losses[:, -max(1, steps // 20) :].mean()),
                 "rg_seconds_with_compile": rg_seconds,
                 "translator_seconds": timings["run_s"],

@@ -40,7 +40,12 @@ from talar_jax.language import (
     load_user_instructions,
 )
 from talar_jax.optim import fit_seeds
-from talar_jax.talar import make_generate_task_language, make_train_translator, make_translate
+from talar_jax.talar import (
+    make_generate_task_language,
+    make_train_translator,
+    make_translate,
+    task_language_quality,
+)
 
 
 class SwappedTranslator:
@@ -71,6 +76,7 @@ def main() -> None:
     parser.add_argument("--paraphrases", type=int, nargs="+", default=[0, 8])
     parser.add_argument("--probability", type=float, default=0.5)
     parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
+    parser.add_argument("--learning-rate", type=float, default=None, help="translator LR (default: the recipe's)")
     parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--unknown-words", action="store_true", help="paraphrases also use unknown words")
@@ -81,6 +87,9 @@ def main() -> None:
     config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
     if args.steps:
         config = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_steps=args.steps))
+    if args.learning_rate:
+        talar = dataclasses.replace(config.talar, translator_learning_rate=args.learning_rate)
+        config = dataclasses.replace(config, talar=talar)
     cache = build_cache(config.env, config.encoder, progress=False)
     dataset = TaskDataset.load(args.run / "oracle" / "dataset")
     data = make_task_language_data(dataset, cache, config.sentence_readout)
@@ -114,21 +123,38 @@ def main() -> None:
         encode_s = time.perf_counter() - start
         unknown = "-unknown" if talar.paraphrase_unknown_words else ""
         label = f"{count}{unknown}"
+        rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
         saved = (
-            args.run / "translator-robustness" / f"paraphrases{count}{unknown}-steps{talar.translator_steps}.msgpack"
+            args.run
+            / "translator-robustness"
+            / f"paraphrases{count}{unknown}-steps{talar.translator_steps}{rate}.msgpack"
         )
         own = args.run / "talar" / "translator" / "params.msgpack"
-        if count == 0 and args.steps is None and own.is_file():  # the run's own translator (the same training)
+        fit_s = 0.0
+        if (
+            count == 0 and args.steps is None and args.learning_rate is None and own.is_file()
+        ):  # the run's own translator (the same training)
             params = load_tree(own)
         elif saved.is_file():  # trained by an earlier call (e.g. before the run's policy had finished)
             params = load_tree(saved)
         else:
+            timings: dict[str, float] = {}
             params, _ = fit_seeds(
-                make_train_translator(talar), seed_keys, targets, train_data, in_axes=(0, None), progress=False
+                make_train_translator(talar),
+                seed_keys,
+                targets,
+                train_data,
+                in_axes=(0, None),
+                progress=False,
+                timings=timings,
             )
+            fit_s = timings["run_s"]
             saved.parent.mkdir(parents=True, exist_ok=True)
             save_tree(saved, params)
         translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
+        tables = np.asarray(translate(params, features))
+        quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
+        quality = {k: [round(q[k], 3) for q in quality] for k in quality[0]}
         per_seed = {name: [] for name in sets}
         misses = np.zeros(len(dev_sentences), int)
         success: dict[str, list] = {}
@@ -160,6 +186,8 @@ def main() -> None:
         results[label] = {
             "per_seed": per_seed,
             "success_per_seed": success,
+            "quality_per_seed": quality,
+            "translator_fit_s": fit_s,
             "encode_s": encode_s,
             "total_s": time.perf_counter() - start,
         }
@@ -167,6 +195,8 @@ def main() -> None:
         print(
             f"paraphrases {count}: TL agreement {line}  ({results[f'{count}{unknown}']['total_s']:.0f} s)", flush=True
         )
+        line = ", ".join(f"{k} {np.mean(v):.3f}" for k, v in quality.items())
+        print(f"    report quality: {line}; fit {fit_s:.0f} s without compile", flush=True)
         if success:
             unchanged = success.pop("goal_codes_unchanged")
             line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in success.items())

@@ -420,12 +420,17 @@ class RunFiles:
 
 
 def make_evaluator(
-    trainer: Trainer, config: PPOConfig, splits: Sequence[str], num_goals: int
+    trainer: Trainer, config: PPOConfig, splits: Sequence[str], num_goals: int, params: dict[str, Any]
 ) -> Callable[[dict[str, Any], int], dict[str, dict[str, Any]]]:
     """``evaluate(seed_params, index) -> split -> summarize_eval(...)``: fresh episodes per split, keys from
-    ``config.seed`` and ``index`` (so a resumed run evaluates exactly as an uninterrupted one)."""
-    eval_fns = {split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))) for split in splits}
+    ``config.seed`` and ``index`` (so a resumed run evaluates exactly as an uninterrupted one). The programs are
+    compiled here for seed-stacked ``params`` of this structure, so an evaluation's wall-clock is its episodes."""
     eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
+    keys = jax.random.split(eval_root, config.num_seeds)
+    eval_fns = {
+        split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))).lower(params, keys).compile()
+        for split in splits
+    }
 
     def evaluate(params: dict[str, Any], index: int) -> dict[str, dict[str, Any]]:
         keys = jax.random.split(jax.random.fold_in(eval_root, index), config.num_seeds)
@@ -481,7 +486,7 @@ def run_ppo(
 
     compile_start = time.perf_counter()
     chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
-    evaluate = make_evaluator(trainer, config, eval_splits, env.num_goals)
+    evaluate = make_evaluator(trainer, config, eval_splits, env.num_goals, state.params)
     compile_s = time.perf_counter() - compile_start
 
     history: list[dict[str, Any]] = []
@@ -511,7 +516,7 @@ def run_ppo(
         if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
             eval_start = time.perf_counter()
             final_eval = evaluate(state.params, chunk_index)
-            row["eval/seconds"] = time.perf_counter() - eval_start  # the first one includes its compilation
+            row["eval/seconds"] = time.perf_counter() - eval_start
             for split, summary in final_eval.items():
                 row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
             success = final_eval.get("train", next(iter(final_eval.values())))["success"]

@@ -71,6 +71,11 @@ class TalarConfig:
     None: every token slot of the longest instruction."""
     translator_steps: int = 10_000
     """Gradient steps of the translator."""
+    behaviour_cloning_steps: int | None = None
+    """Gradient steps of the pre-trained BERT-* baselines' behaviour cloning (None: ``translator_steps``)."""
+    behaviour_cloning_learning_rate: float | None = None
+    """Adam LR of that behaviour cloning (None: ``translator_learning_rate``). A recipe that shortens its translator
+    pins these two so that the baselines keep their budget."""
     translator_full_batch: bool = False
     """Each translator step takes the exact expected loss over the whole task dataset instead of a ``batch_size``
     sample of tuples: one row per distinct instruction (and per paraphrase), whose target is the mean TL of the
@@ -85,6 +90,16 @@ class TalarConfig:
     """Seed of the paraphrases (the same seed gives the same sentences)."""
     paraphrase_unknown_words: bool = False
     """Paraphrases may also replace a function word by a word of the encoder's vocabulary no instruction uses."""
+
+    @property
+    def bc_steps(self) -> int:
+        """Behaviour-cloning steps: ``behaviour_cloning_steps``, else ``translator_steps``."""
+        return self.behaviour_cloning_steps or self.translator_steps
+
+    @property
+    def bc_learning_rate(self) -> float:
+        """Behaviour-cloning LR: ``behaviour_cloning_learning_rate``, else ``translator_learning_rate``."""
+        return self.behaviour_cloning_learning_rate or self.translator_learning_rate
 
     @property
     def referential_batch_size(self) -> int:
@@ -133,6 +148,7 @@ class TalarConfig:
             "rg_batch_size",
             "receiver_prefix_dims",
             "rg_token_slots",
+            "behaviour_cloning_steps",
         ):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ValueError(f"TalarConfig.{name} must be >= 1, got {getattr(self, name)}")

@@ -82,7 +82,9 @@ TRANSLATOR_READS = RG_READS | {
     "talar.translator_steps",
     "talar.translator_paraphrases",
     "talar.translator_full_batch",
-}  # the paraphrases' probability, seed and unknown words are read only with paraphrases on (the next test)
+}
+PARAPHRASE_READS = {"talar.paraphrase_probability", "talar.paraphrase_seed", "talar.paraphrase_unknown_words"}
+# ... read only with paraphrases on (CLEVR's recipe has them on; the next tests)
 
 
 @pytest.mark.parametrize("method", list(METHODS))
@@ -96,17 +98,20 @@ def test_the_ifp_reruns_when_any_setting_changes_and_not_for_out_or_progress(met
 
 def test_referential_game_and_translator_keys_follow_exactly_what_they_read():
     base = default_config("clevr", physics="c")
+    assert base.talar.translator_paraphrases > 0
+    translator_reads = TRANSLATOR_READS | PARAPHRASE_READS
     reference = _keys(base)
     for name, variant in _variants(base):
         keys = _keys(variant)
         rg_changed = keys["talar/task_language"] != reference["talar/task_language"]
         translator_changed = keys["talar/translator"] != reference["talar/translator"]
         assert rg_changed == (name in RG_READS), f"changing {name}: referential game rerun {rg_changed}"
-        assert translator_changed == (name in TRANSLATOR_READS), f"changing {name}: translator {translator_changed}"
+        assert translator_changed == (name in translator_reads), f"changing {name}: translator {translator_changed}"
 
 
 def test_paraphrase_settings_reach_the_translator_key_only_when_paraphrases_are_on():
-    base = default_config("clevr", physics="c")
+    clevr = default_config("clevr", physics="c")
+    base = dataclasses.replace(clevr, talar=dataclasses.replace(clevr.talar, translator_paraphrases=0))
     on = dataclasses.replace(base, talar=dataclasses.replace(base.talar, translator_paraphrases=8))
     reference = _keys(on)
     for change in ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, {"paraphrase_unknown_words": True}):
@@ -143,3 +148,25 @@ def test_editing_an_env_model_reruns_the_oracle_and_the_policy(monkeypatch, tmp_
     stage_oracle(config)
     assert seen["oracle"] != seen_before["oracle"]
     assert stage_keys(config, UPSTREAM, CACHE)["ifp"] != reference_ifp
+
+
+def test_behaviour_cloning_keeps_its_budget_when_a_recipe_pins_it_and_the_translator_changes():
+    base = default_config("clevr", method="pretrained-bert-binary", physics="c")
+    bc = "pretrained-bert-binary/behaviour_cloning"
+
+    def with_talar(config, **change):
+        return dataclasses.replace(config, talar=dataclasses.replace(config.talar, **change))
+
+    unpinned = with_talar(base, behaviour_cloning_steps=None, behaviour_cloning_learning_rate=None)
+    # unpinned, behaviour cloning reads the translator's budget ...
+    assert _keys(with_talar(unpinned, translator_steps=123))[bc] != _keys(unpinned)[bc]
+    assert _keys(with_talar(unpinned, translator_learning_rate=0.01))[bc] != _keys(unpinned)[bc]
+    # ... pinned to the same values it is the same stage, and a translator change no longer reaches it
+    pinned = with_talar(
+        unpinned,
+        behaviour_cloning_steps=unpinned.talar.translator_steps,
+        behaviour_cloning_learning_rate=unpinned.talar.translator_learning_rate,
+    )
+    assert _keys(pinned)[bc] == _keys(unpinned)[bc]
+    assert _keys(with_talar(pinned, translator_steps=123, translator_learning_rate=0.01))[bc] == _keys(pinned)[bc]
+    assert _keys(with_talar(pinned, behaviour_cloning_steps=123))[bc] != _keys(pinned)[bc]
