@@ -25,7 +25,7 @@ from experiments.pipeline import (
     run,
     run_name,
 )
-from experiments.recipes import EXPERIMENT_TALAR, recipe_names
+from experiments.recipes import recipe_names
 from talar_jax.report import plot_learning_curves, results_table
 from talar_jax.stages import StageResult
 
@@ -34,7 +34,7 @@ from talar_jax.stages import StageResult
 class CompareArgs:
     """Which methods to compare, on the experiment settings every method shares."""
 
-    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(talar=EXPERIMENT_TALAR)
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig()
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe, as ``default_config(env)``; ``--out`` defaults to runs/compare-<env>; ``--method`` is set per
     method)."""

@@ -15,8 +15,7 @@ import numpy as np
 import tyro
 
 from experiments.compare import CompareArgs, compare, main_with
-from experiments.pipeline import ExperimentConfig
-from experiments.recipes import CLEVR_TALAR
+from experiments.pipeline import ExperimentConfig, default_config
 
 PAPER = {
     "TALAR": (100.0, 100.0, 99.9),
@@ -30,8 +29,8 @@ PAPER = {
 class PatternsArgs:
     """Table 3 settings."""
 
-    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(
-        env="clevr", out=Path("runs/patterns-clevr"), talar=CLEVR_TALAR
+    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = dataclasses.replace(
+        default_config("clevr"), out=Path("runs/patterns-clevr")
     )
     """The shared settings, as ``experiments.clevr`` takes them (one output folder: shared oracle, dataset and task
     language; ``--num-patterns`` and ``--method`` are set per row and column)."""

@@ -129,7 +129,7 @@ def test_compare_nests_the_env_commands_config(tmp_path):
         base_config(CompareArgs(experiment=base, ifp_env_steps=0))
     assert base_config(CompareArgs(experiment=base, ifp_env_steps=300_000)).ifp.total_env_steps == 300_000
     assert base_config(CompareArgs(experiment=base)).talar == clevr.DEFAULT.talar  # same TL settings as the command
-    parsed = tyro.cli(CompareArgs, args=["--talar.gumbel-temperature", "2"], config=CLI_CONFIG)
+    parsed = parse_args(CompareArgs, ["--talar.gumbel-temperature", "2"])
     assert base_config(parsed).talar.gumbel_temperature == 2.0
     assert base_config(CompareArgs(experiment=base)).sentence_readout == clevr.DEFAULT.sentence_readout
     readout = dataclasses.replace(base, sentence_readout="sentence")
@@ -143,6 +143,10 @@ def test_compare_nests_the_env_commands_config(tmp_path):
             "runs/compare-kitchen"
         )
     assert base_config(parse_args(CompareArgs, [])).talar == resolve(clevr.DEFAULT).talar
+    # ... and so are the Python API's (the class default once pinned the shared EXPERIMENT_TALAR, not CLEVR's recipe)
+    assert dataclasses.replace(base_config(CompareArgs()), out=None) == dataclasses.replace(
+        resolve(clevr.DEFAULT), out=None
+    )
 
 
 def test_python_api_and_command_line_make_the_same_run():
