@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -25,10 +24,10 @@ from talar_jax.runtime import configure
 
 configure()
 
-import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks.env_sps import BenchConfig, time_backend  # noqa: E402
+from benchmarks.machine import machine_info  # noqa: E402
 from experiments.pipeline import default_config, run  # noqa: E402
 from talar_jax.ppo import derive  # noqa: E402
 
@@ -134,7 +133,7 @@ def main() -> None:
     for env_name in args.envs:
         rows.append(measure(env_name, args.seeds, args.ifp_chunks, out))
         table = markdown(rows)
-        machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+        machine = machine_info()
         RESULTS_DIR.mkdir(parents=True, exist_ok=True)
         (RESULTS_DIR / "pipeline.json").write_text(
             json.dumps({"machine": machine, "args": {**vars(args), "out": str(out)}, "rows": rows}, indent=2)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -27,6 +26,7 @@ configure()
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.machine import machine_info  # noqa: E402
 from experiments.recipes import get_recipe  # noqa: E402
 from talar_jax.dataset import TaskDataset  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
@@ -123,7 +123,7 @@ def main() -> None:
         "translator_batch": config.batch_size,
         "distinct_training_sentences": int(data.dataset_sentences.shape[0]),
     }
-    machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+    machine = machine_info()
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     out = RESULTS_DIR / f"supervised_layouts_{args.env}.json"
     arguments = {**vars(args), "dataset": str(args.dataset)}

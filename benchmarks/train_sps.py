@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import jax
 import numpy as np
 
 import envs
+from benchmarks.machine import machine_info
 from talar_jax.conditioning import GoalOneHotConditioner
 from talar_jax.ppo import PPOConfig, derive, make_train
 
@@ -155,7 +155,7 @@ def main() -> None:
 
 def _write(args: argparse.Namespace, rows: list[dict]) -> None:
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    machine = {"platform": platform.platform(), "cpus": jax.local_device_count(), "backend": jax.default_backend()}
+    machine = machine_info()
     RESULTS.write_text(json.dumps({"machine": machine, "args": vars(args), "rows": rows}, indent=2))
 
 

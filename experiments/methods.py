@@ -231,7 +231,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
             "translator_loss_end": losses[:, -max(1, losses.shape[1] // 20) :].mean(1).tolist(),
             "tl_quality": {k: [q[k] for q in quality] for k in quality[0]},
             "distinct_target_codes": [len(np.unique(np.asarray(t).round(), axis=0)) for t in targets],
-            "paraphrase_features_s": paraphrase_s,
+            **({"paraphrase_features_s": paraphrase_s} if config.talar.translator_paraphrases else {}),
             **timings,
         }
 
