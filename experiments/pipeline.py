@@ -122,7 +122,13 @@ def quick_config(config: ExperimentConfig) -> ExperimentConfig:
         config,
         oracle_env_steps=config.oracle_env_steps or 20_480,
         num_tuples=config.num_tuples or 2_000,
-        talar=dataclasses.replace(config.talar, rg_steps=300, translator_steps=300, batch_size=128),
+        talar=dataclasses.replace(
+            config.talar,
+            rg_steps=300,
+            translator_steps=300,
+            batch_size=128,
+            translator_paraphrases=min(config.talar.translator_paraphrases, 1),  # the code path, not 8x the encoding
+        ),
         ifp=dataclasses.replace(
             config.ifp, num_envs=16, rollout_length=32, total_env_steps=10_240, updates_per_chunk=5, eval_episodes=32
         ),
