@@ -259,6 +259,7 @@ def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
         seed=config.talar.paraphrase_seed,
         exclude=held_out,
         unknown_words=encoder.whole_words() if config.talar.paraphrase_unknown_words else (),
+        front_phrases=config.talar.paraphrase_front_phrases,
     )
     sentences = [v for per_sentence in variants for v in per_sentence]
     features = cached_sentence_features(encoder, sentences, config.sentence_readout, progress=config.progress)

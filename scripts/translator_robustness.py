@@ -80,6 +80,7 @@ def main() -> None:
     parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--unknown-words", action="store_true", help="paraphrases also use unknown words")
+    parser.add_argument("--front-phrases", action="store_true", help="paraphrases also front the closing phrase")
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args()
@@ -115,13 +116,14 @@ def main() -> None:
             translator_paraphrases=count,
             paraphrase_probability=args.probability,
             paraphrase_unknown_words=args.unknown_words,
+            paraphrase_front_phrases=args.front_phrases,
         )
         variant = dataclasses.replace(config, talar=talar)
         ctx = MethodContext(variant, "", data, cache, dataset, None)
         start = time.perf_counter()
         train_data = paraphrased_data(ctx)
         encode_s = time.perf_counter() - start
-        unknown = "-unknown" if talar.paraphrase_unknown_words else ""
+        unknown = ("-unknown" if talar.paraphrase_unknown_words else "") + ("-front" if args.front_phrases else "")
         label = f"{count}{unknown}"
         rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
         saved = (

@@ -90,6 +90,9 @@ class TalarConfig:
     """Seed of the paraphrases (the same seed gives the same sentences)."""
     paraphrase_unknown_words: bool = False
     """Paraphrases may also replace a function word by a word of the encoder's vocabulary no instruction uses."""
+    paraphrase_front_phrases: bool = False
+    """Paraphrases may also move the sentence's closing phrase to its front ("Behind the blue ball, push the red
+    ball."), so the translator meets the reference named before the ball to move."""
 
     @property
     def bc_steps(self) -> int:
@@ -134,6 +137,7 @@ class TalarConfig:
                     "paraphrase_probability": self.paraphrase_probability,
                     "paraphrase_seed": self.paraphrase_seed,
                     **({"paraphrase_unknown_words": True} if self.paraphrase_unknown_words else {}),
+                    **({"paraphrase_front_phrases": True} if self.paraphrase_front_phrases else {}),
                 }
                 if self.translator_paraphrases
                 else {}

@@ -616,3 +616,31 @@ def test_unknown_word_paraphrases_replace_only_function_words():
     for source, variants in zip(sentences, unknown, strict=True):
         for variant in variants:
             assert _content(variant, function | new) == _content(source, function), (source, variant)
+
+
+def test_fronted_paraphrases_name_the_reference_first_with_the_same_words():
+    from talar_jax.language import paraphrase_variants
+    from talar_jax.language.augment import function_words, words
+
+    train = load_instructions("clevr", "train")
+    sentences, goals = list(train.sentences), train.goal_ids
+    function = function_words(sentences, goals)
+    plain = paraphrase_variants(sentences, goals, 4, seed=2)
+    fronted = paraphrase_variants(sentences, goals, 4, seed=2, front_phrases=True)
+    assert fronted == paraphrase_variants(sentences, goals, 4, seed=2, front_phrases=True)
+    assert not any("," in v for vs in plain for v in vs)  # off: the edit is never drawn
+    moved = 0
+    for source, variants in zip(sentences, fronted, strict=True):
+        for variant in variants:
+            content = _content(variant, function)
+            assert sorted(content) == sorted(_content(source, function)), (source, variant)  # same goal words
+            if "," in variant:
+                moved += 1
+                head = [w for w in words(variant.split(",")[0]) if w[0].isalnum() and w not in function]
+                last = [w for w in words(source) if w[0].isalnum() and w not in function][-1]
+                assert head and head[-1] == last, (source, variant)  # the fronted phrase names the reference
+    assert 0.15 < moved / (4 * len(sentences)) < 0.6
+    # the edit alone (one edit per variant), on one sentence
+    row = sentences.index("Push the red ball behind the blue ball.")
+    single = paraphrase_variants(sentences, goals, 30, seed=0, max_edits=1, front_phrases=True)[row]
+    assert "Behind the blue ball, push the red ball." in single

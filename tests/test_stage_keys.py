@@ -83,7 +83,12 @@ TRANSLATOR_READS = RG_READS | {
     "talar.translator_paraphrases",
     "talar.translator_full_batch",
 }
-PARAPHRASE_READS = {"talar.paraphrase_probability", "talar.paraphrase_seed", "talar.paraphrase_unknown_words"}
+PARAPHRASE_READS = {
+    "talar.paraphrase_probability",
+    "talar.paraphrase_seed",
+    "talar.paraphrase_unknown_words",
+    "talar.paraphrase_front_phrases",
+}
 # ... read only with paraphrases on (CLEVR's recipe has them on; the next tests)
 
 
@@ -114,7 +119,8 @@ def test_paraphrase_settings_reach_the_translator_key_only_when_paraphrases_are_
     base = dataclasses.replace(clevr, talar=dataclasses.replace(clevr.talar, translator_paraphrases=0))
     on = dataclasses.replace(base, talar=dataclasses.replace(base.talar, translator_paraphrases=8))
     reference = _keys(on)
-    for change in ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, {"paraphrase_unknown_words": True}):
+    changes = ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, {"paraphrase_unknown_words": True})
+    for change in (*changes, {"paraphrase_front_phrases": True}):
         keys = _keys(dataclasses.replace(on, talar=dataclasses.replace(on.talar, **change)))
         assert keys["talar/translator"] != reference["talar/translator"], change
         assert keys["talar/task_language"] == reference["talar/task_language"], change

@@ -13,7 +13,10 @@ sentence's meaning, using only the words of the training set:
   splice the sentence's opening function words onto another training sentence of the same goal from its first content
   word on, when both start their content with the same word ("Is there any" + "red ball is pushed behind the blue
   ball."), and, when given
-  ``unknown_words`` (the encoder's vocabulary), replace a function word by a word no instruction uses.
+  ``unknown_words`` (the encoder's vocabulary), replace a function word by a word no instruction uses, and, with
+  ``front_phrases``, move the sentence's closing phrase (from the first content word of its second run of content
+  words to the end) to its front: "Push the red ball behind the blue ball." -> "Behind the blue ball, push the red
+  ball." (topicalisation: the same words, the reference named first).
 
 Everything is a pure function of (sentences, goal ids, seed, excluded sentences): the same seed gives the same
 variants. Test and development sentences never serve as material: the caller passes the training sentences only, and
@@ -29,7 +32,7 @@ from collections.abc import Sequence
 import numpy as np
 
 _WORD = re.compile(r"\w+(?:'\w+)?|[^\w\s]")
-EDITS: tuple[str, ...] = ("drop", "insert", "substitute", "swap", "splice", "replace")
+EDITS: tuple[str, ...] = ("drop", "insert", "substitute", "swap", "splice", "replace", "front")
 
 
 def words(sentence: str) -> list[str]:
@@ -64,6 +67,7 @@ def paraphrase_variants(
     function_fraction: float = 0.5,
     exclude: Sequence[str] = (),
     unknown_words: Sequence[str] = (),
+    front_phrases: bool = False,
 ) -> list[list[str]]:
     """``num_variants`` paraphrases of each training sentence (see the module docstring).
 
@@ -80,6 +84,7 @@ def paraphrase_variants(
         unknown_words: words outside the instructions (e.g. ``BertEncoder.whole_words()``); if given, a sixth edit
             replaces a function word by one of them, so that the translator learns to ignore a word it has never
             seen in a function position ("nudging", "sphere"). Empty: that edit is never drawn.
+        front_phrases: also draw the edit that moves the closing phrase to the front (module docstring).
 
     Returns:
         One list of ``num_variants`` sentences per input sentence (a variant may repeat its source when no edit
@@ -102,7 +107,7 @@ def paraphrase_variants(
         same_goal[goal].append(row)
 
     unknown = sorted(set(unknown_words) - {w for tokens in tokenised for w in tokens})
-    edits = EDITS if unknown else EDITS[:-1]
+    edits = tuple(e for e in EDITS if (e != "replace" or unknown) and (e != "front" or front_phrases))
 
     def is_content(word: str) -> bool:
         return word[0].isalnum() and word not in function and word not in unknown
@@ -129,6 +134,12 @@ def paraphrase_variants(
         if kind == "replace" and spots:
             i = spots[rng.integers(len(spots))]
             return tokens[:i] + [unknown[rng.integers(len(unknown))]] + tokens[i + 1 :]
+        if kind == "front" and "," not in tokens:  # a fronted sentence has its comma: never front twice
+            end = len(tokens) - (1 if tokens and not tokens[-1][0].isalnum() else 0)
+            content = [i for i in range(end) if is_content(tokens[i])]
+            starts = [i for i in content[1:] if not is_content(tokens[i - 1])]  # later runs of content words
+            if starts:
+                return tokens[starts[0] : end] + [","] + tokens[: starts[0]] + tokens[end:]
         if (
             kind == "splice"
         ):  # this sentence's opening function words + a same-goal sentence from its first content word
