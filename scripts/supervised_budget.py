@@ -42,6 +42,15 @@ from talar_jax.talar import (  # noqa: E402
 )
 
 
+def _budget(text: str) -> tuple[int, float]:
+    """``STEPS@LR`` -> (steps, learning rate)."""
+    try:
+        steps, rate = text.split("@")
+        return int(steps), float(rate)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected STEPS@LR such as 2000@0.002, got {text!r}") from None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dataset", type=Path, help="an oracle stage's dataset/ folder")
@@ -55,19 +64,12 @@ def main() -> None:
     parser.add_argument("--receiver-prefix-dims", type=int, default=None, help="TalarConfig.receiver_prefix_dims")
     parser.add_argument("--receiver-hidden", type=int, nargs="+", default=None, help="TalarConfig.receiver_hidden")
     parser.add_argument("--rg-token-slots", type=int, default=None, help="TalarConfig.rg_token_slots")
-    parser.add_argument("--rg-learning-rate", type=float, default=None, help="TalarConfig.rg_learning_rate")
-    parser.add_argument(
-        "--translator-learning-rates",
-        type=float,
-        nargs="+",
-        default=None,
-        help="TalarConfig.translator_learning_rate values to try at every translator budget (default: the recipe's)",
-    )
     parser.add_argument(
         "--translators",
         nargs="+",
+        type=_budget,
         default=None,
-        help="STEPS@LR translator budgets to try instead of --translator-steps x --translator-learning-rates",
+        help="STEPS@LR translator budgets to try instead of --translator-steps at the recipe's LR",
     )
     args = parser.parse_args()
     recipe = get_recipe(args.env)
@@ -80,14 +82,13 @@ def main() -> None:
         config = dataclasses.replace(config, receiver_hidden=tuple(args.receiver_hidden))
     if args.rg_token_slots:
         config = dataclasses.replace(config, rg_token_slots=args.rg_token_slots)
-    if args.rg_learning_rate:
-        config = dataclasses.replace(config, rg_learning_rate=args.rg_learning_rate)
     rg_data = prepare_referential_data(config, data)
     fit = make_train_task_language(config, cache.vocab_size, cache.max_tokens)
     keys = jax.random.split(jax.random.key(args.seed), args.seeds)
     state = jax.jit(jax.vmap(fit.init, in_axes=(0, None)))(keys, rg_data)
     generate = jax.jit(jax.vmap(make_generate_task_language(config), in_axes=(0, None, None)))
     translate = jax.jit(jax.vmap(make_translate(config), in_axes=(0, None)))
+    budgets = args.translators or [(steps, config.translator_learning_rate) for steps in args.translator_steps]
     rows, done, rg_seconds = [], 0, 0.0
     for milestone in sorted(args.rg_milestones):
         steps = milestone - done
@@ -98,13 +99,6 @@ def main() -> None:
         rg_seconds += time.perf_counter() - start
         done = milestone
         targets = generate(state.params["generator"], data.states, data.final_states)
-        budgets = [
-            (steps, rate)
-            for steps in args.translator_steps
-            for rate in args.translator_learning_rates or [config.translator_learning_rate]
-        ]
-        if args.translators:
-            budgets = [(int(b.split("@")[0]), float(b.split("@")[1])) for b in args.translators]
         for translator_steps, translator_rate in budgets:
             timings: dict[str, float] = {}
             translator_config = dataclasses.replace(

@@ -123,13 +123,15 @@ def main() -> None:
         start = time.perf_counter()
         train_data = paraphrased_data(ctx)
         encode_s = time.perf_counter() - start
-        unknown = ("-unknown" if talar.paraphrase_unknown_words else "") + ("-front" if args.front_phrases else "")
-        label = f"{count}{unknown}"
+        edits = ("-unknown" if talar.paraphrase_unknown_words else "") + (
+            "-front" if talar.paraphrase_front_phrases else ""
+        )
+        label = f"{count}{edits}"
         rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
         saved = (
             args.run
             / "translator-robustness"
-            / f"paraphrases{count}{unknown}-steps{talar.translator_steps}{rate}.msgpack"
+            / f"paraphrases{count}{edits}-steps{talar.translator_steps}{rate}.msgpack"
         )
         own = args.run / "talar" / "translator" / "params.msgpack"
         fit_s = 0.0
@@ -194,9 +196,7 @@ def main() -> None:
             "total_s": time.perf_counter() - start,
         }
         line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
-        print(
-            f"paraphrases {count}: TL agreement {line}  ({results[f'{count}{unknown}']['total_s']:.0f} s)", flush=True
-        )
+        print(f"paraphrases {count}: TL agreement {line}  ({results[label]['total_s']:.0f} s)", flush=True)
         line = ", ".join(f"{k} {np.mean(v):.3f}" for k, v in quality.items())
         print(f"    report quality: {line}; fit {fit_s:.0f} s without compile", flush=True)
         if success:
