@@ -41,8 +41,7 @@ class GeneralizeArgs:
 
 def instruction_sets(agent: Agent, instructions: Path) -> dict[str, tuple[np.ndarray, np.ndarray, list[str]]]:
     """name -> (features (S, F), goal ids (S,), sentences) of the run's train and test sets and the user's."""
-    cache, readout = agent.cache, agent.readout
-    features = cache.sentence_features(readout)
+    cache, features = agent.cache, agent.cache_features()
     sets = {}
     for split in ("train", "test"):
         patterns = agent.config.get("num_patterns") if split == "train" else None

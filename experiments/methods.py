@@ -32,12 +32,14 @@ from talar_jax.conditioning import Conditioner, InstructionTableConditioner
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import (
     DEVELOPMENT_FILE,
+    TOKEN_READOUT,
     EmbeddingCache,
     cached_sentence_features,
     load_encoder,
     load_instructions,
     load_user_instructions,
     paraphrase_variants,
+    readout_features,
 )
 from talar_jax.optim import fit_seeds
 from talar_jax.sharding import shard_seeds
@@ -75,6 +77,12 @@ class MethodSetup:
         return {k: v for stage in self.stages.values() for k, v in stage.summary.items()}
 
 
+def translator_readout(config: ExperimentConfig) -> str:
+    """What the run's translators read of a sentence: the token states with ``talar.translator_tokens``, else the
+    experiment's ``sentence_readout`` (which the NL-encoding baselines always read)."""
+    return TOKEN_READOUT if config.talar.translator_tokens else config.sentence_readout
+
+
 def stage_seed_keys(seed: int, stage: str, seeds: int) -> jax.Array:
     """(seeds,) keys of a stage of the run with base seed ``seed``, stable across processes (crc32 of the stage's
     name, not Python's hash): what a script retraining a stage's fit needs to match the run."""
@@ -104,6 +112,16 @@ class MethodContext:
     def seed_keys(self, stage: str) -> jax.Array:
         """(seeds,) keys of a stage (``stage_seed_keys``), sharded over the devices."""
         return shard_seeds(stage_seed_keys(self.config.seed, stage, self.seeds), self.seeds)
+
+    def translator_data(self) -> TaskLanguageData:
+        """``data`` with the translator's readout of every cached sentence (``translator_readout``): the same
+        arrays unless the translator reads token states."""
+        readout = translator_readout(self.config)
+        if readout == self.config.sentence_readout:
+            return self.data
+        encoder = load_encoder(self.config.encoder)
+        features = readout_features(self.cache, readout, encoder, progress=self.config.progress)
+        return self.data._replace(sentence_embeddings=jnp.asarray(features, jnp.float32))
 
     def lookups(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """split -> (goal -> cache rows of its instructions, counts); CLEVR training may keep only k patterns."""
@@ -178,7 +196,13 @@ def method_stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: st
         return {"onehot": stable_hash("onehot", cache_key)}
     if method == "end-to-end":
         t = config.talar
-        fields = (t.referential_game_fields(), t.translator_hidden, config.sentence_readout, config.seeds, config.seed)
+        fields = (
+            t.referential_game_fields(),
+            t.translator_hidden,
+            translator_readout(config),
+            config.seeds,
+            config.seed,
+        )
         return {"end-to-end/joint": stable_hash("end-to-end", upstream_key, cache_key, *fields)}
     if method.startswith("pretrained-"):
         return {f"{method}/behaviour_cloning": behaviour_cloning_key(config, method, upstream_key, cache_key)}
@@ -203,13 +227,14 @@ def _frozen_table_setup(ctx: MethodContext, tables: np.ndarray, key: str, stages
 
 def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguageSpec, targets_fn) -> StageResult:
     """Trains one translator per seed to ``targets_fn(stage_dir) -> (seeds, N, |L|)``; saves translated tables."""
-    config, cache, data = ctx.config, ctx.cache, ctx.data
+    config, cache = ctx.config, ctx.cache
 
     def body(stage_dir: Path) -> dict[str, Any]:
         targets = jnp.asarray(targets_fn(stage_dir), jnp.float32)
+        data = ctx.translator_data()
         fit, timings = make_train_translator(config.talar, spec), {}
         start = time.perf_counter()
-        train_data = paraphrased_data(ctx)  # encodes the paraphrases once per machine (then cached)
+        train_data = paraphrased_data(ctx, data)  # encodes the paraphrases once per machine (then cached)
         paraphrase_s = time.perf_counter() - start
         params, losses = fit_seeds(
             fit,
@@ -238,10 +263,12 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
     return run_stage(config.out, name, key, body)
 
 
-def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
-    """The translator's data: ``ctx.data``, plus ``config.talar.translator_paraphrases`` paraphrases of each training
-    instruction the task dataset uses (never a test sentence), encoded once like the cache's own sentences."""
-    config, cache, data = ctx.config, ctx.cache, ctx.data
+def paraphrased_data(ctx: MethodContext, data: TaskLanguageData | None = None) -> TaskLanguageData:
+    """The translator's data (``data``, default ``ctx.translator_data()``), plus ``config.talar.translator_paraphrases``
+    paraphrases of each training instruction the task dataset uses (never a test sentence), encoded once like the
+    cache's own sentences."""
+    config, cache = ctx.config, ctx.cache
+    data = ctx.translator_data() if data is None else data
     count = config.talar.translator_paraphrases
     if not count:
         return data
@@ -262,7 +289,7 @@ def paraphrased_data(ctx: MethodContext) -> TaskLanguageData:
         front_phrases=config.talar.paraphrase_front_phrases,
     )
     sentences = [v for per_sentence in variants for v in per_sentence]
-    features = cached_sentence_features(encoder, sentences, config.sentence_readout, progress=config.progress)
+    features = cached_sentence_features(encoder, sentences, translator_readout(config), progress=config.progress)
     return with_paraphrases(data, features, np.repeat(rows, count))
 
 
@@ -305,7 +332,7 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
 
 def setup_end_to_end(ctx: MethodContext) -> MethodSetup:
     """End-to-end TALAR (Appendix E.6): generator, receiver and translator trained jointly in one stage."""
-    config, cache, data = ctx.config, ctx.cache, ctx.data
+    config, cache, data = ctx.config, ctx.cache, ctx.translator_data()
     ((stage_name, key),) = method_stage_keys(config, ctx.upstream_key, cache.key).items()
 
     def body(stage_dir: Path) -> dict[str, Any]:
@@ -385,7 +412,7 @@ def setup_onehot(ctx: MethodContext) -> MethodSetup:
 
 def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned: bool = False) -> MethodSetup:
     config = ctx.config
-    features = ctx.data.sentence_embeddings  # the same sentence readout the translators get (on device already)
+    features = ctx.data.sentence_embeddings  # the experiment's sentence readout (on device already)
     architecture = (config.talar.spec, config.talar.generator_hidden) if aligned else None
     conditioner = EncodingLayerConditioner(features, ctx.lookups(), config.talar.spec.size, binary, architecture)
     name = config.method

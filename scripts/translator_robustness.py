@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from experiments.generalize import evaluate_seed
-from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys
+from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys, translator_readout
 from experiments.pipeline import default_config, make_task_language_data, resolve
 from talar_jax.agent import Agent
 from talar_jax.checkpoint import load_tree, save_tree
@@ -38,6 +38,7 @@ from talar_jax.language import (
     load_encoder,
     load_instructions,
     load_user_instructions,
+    readout_features,
 )
 from talar_jax.optim import fit_seeds
 from talar_jax.talar import (
@@ -81,6 +82,9 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--unknown-words", action="store_true", help="paraphrases also use unknown words")
     parser.add_argument("--front-phrases", action="store_true", help="paraphrases also front the closing phrase")
+    parser.add_argument(
+        "--tokens", choices=["on", "off"], default=None, help="translator reads token states (default: the recipe's)"
+    )
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args()
@@ -91,6 +95,9 @@ def main() -> None:
     if args.learning_rate:
         talar = dataclasses.replace(config.talar, translator_learning_rate=args.learning_rate)
         config = dataclasses.replace(config, talar=talar)
+    if args.tokens is not None:
+        talar = dataclasses.replace(config.talar, translator_tokens=args.tokens == "on")
+        config = dataclasses.replace(config, talar=talar)
     cache = build_cache(config.env, config.encoder, progress=False)
     dataset = TaskDataset.load(args.run / "oracle" / "dataset")
     data = make_task_language_data(dataset, cache, config.sentence_readout)
@@ -98,11 +105,12 @@ def main() -> None:
     generate = jax.jit(jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None)))
     targets = jnp.asarray(generate(generator, data.states, data.final_states), jnp.float32)
 
-    features = cache.sentence_features(config.sentence_readout)
+    encoder = load_encoder(config.encoder)
+    features = readout_features(cache, translator_readout(config), encoder)
     train_rows = load_instructions(config.env, "train").sentence_ids
     test_rows = load_instructions(config.env, "test").sentence_ids
     dev_sentences, dev_goals = load_user_instructions(args.development, config.env)
-    dev_features = cached_sentence_features(load_encoder(config.encoder), dev_sentences, config.sentence_readout)
+    dev_features = cached_sentence_features(encoder, dev_sentences, translator_readout(config))
     sets = {
         "train": (features[train_rows], cache.goal_ids[train_rows]),
         "test": (features[test_rows], cache.goal_ids[test_rows]),
@@ -123,8 +131,10 @@ def main() -> None:
         start = time.perf_counter()
         train_data = paraphrased_data(ctx)
         encode_s = time.perf_counter() - start
-        edits = ("-unknown" if talar.paraphrase_unknown_words else "") + (
-            "-front" if talar.paraphrase_front_phrases else ""
+        edits = (
+            ("-unknown" if talar.paraphrase_unknown_words else "")
+            + ("-front" if talar.paraphrase_front_phrases else "")
+            + ("-tokens" if talar.translator_tokens else "")
         )
         label = f"{count}{edits}"
         rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
@@ -136,7 +146,7 @@ def main() -> None:
         own = args.run / "talar" / "translator" / "params.msgpack"
         fit_s = 0.0
         if (
-            count == 0 and args.steps is None and args.learning_rate is None and own.is_file()
+            count == 0 and args.steps is None and args.learning_rate is None and args.tokens is None and own.is_file()
         ):  # the run's own translator (the same training)
             params = load_tree(own)
         elif saved.is_file():  # trained by an earlier call (e.g. before the run's policy had finished)

@@ -30,7 +30,7 @@ import numpy as np
 import envs
 from talar_jax.baselines import NLEncodingLayer
 from talar_jax.checkpoint import load_tree
-from talar_jax.language import build_cache, load_encoder, sentence_features
+from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features, sentence_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
 from talar_jax.talar import TalarConfig, make_translate
 from talar_jax.task_language import TaskLanguageSpec
@@ -122,7 +122,8 @@ class Agent:
             raise AgentError(f"--seed must lie in 0..{seeds - 1} (the run has {seeds} seeds), got {seed}")
         self.seed = seed
         self.env_name = self.config["env"]
-        self.readout = self.config["sentence_readout"]
+        reads_tokens = self.method in TRANSLATOR_STAGES and self.config["talar"].get("translator_tokens", False)
+        self.readout = TOKEN_READOUT if reads_tokens else self.config["sentence_readout"]
         self.env = envs.make(
             self.env_name, physics=physics or envs.default_backend(), **(self.config.get("env_options") or {})
         )
@@ -133,7 +134,7 @@ class Agent:
         params = jax.tree.map(lambda x: np.asarray(x)[seed], _latest_policy_params(folder / "ifp" / "ppo"))
         self._encoding = self._make_encoding(params)
         train_rows = np.flatnonzero(self.cache.is_train)
-        self._train_codes = np.asarray(self._encoding(self.cache.sentence_features(self.readout)[train_rows]))
+        self._train_codes = np.asarray(self._encoding(self.cache_features()[train_rows]))
         self._train_goals = self.cache.goal_ids[train_rows]
         ifp = self.config["ifp"]
         self.code_size = int(self._train_codes.shape[1])
@@ -165,7 +166,10 @@ class Agent:
                 spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=self.cache.num_goals)
             else:
                 spec = TaskLanguageSpec(num_predicates=TaskLanguageSpec(**talar["spec"]).size, num_arguments=0)
-            translate = make_translate(TalarConfig(translator_hidden=tuple(talar["translator_hidden"])), spec)
+            translator_config = TalarConfig(
+                translator_hidden=tuple(talar["translator_hidden"]), translator_tokens=self.readout == TOKEN_READOUT
+            )
+            translate = make_translate(translator_config, spec)
             stage = self.folder.parent / TRANSLATOR_STAGES[self.method] / "params.msgpack"
             translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], load_tree(stage))
             return jax.jit(lambda features: translate(translator, features))
@@ -190,6 +194,10 @@ class Agent:
             return sentence_features(self.encoder, sentences, self.readout)
         except ValueError as error:
             raise AgentError(str(error)) from None
+
+    def cache_features(self) -> np.ndarray:
+        """The features ``encode`` gives, of every sentence of the env's instruction file (cache rows)."""
+        return readout_features(self.cache, self.readout, self.encoder)
 
     def translate(self, sentences: str | Sequence[str]) -> np.ndarray:
         """(S, code_size) the code the policy is conditioned on for each sentence (TALAR: its task language)."""

@@ -93,6 +93,10 @@ class TalarConfig:
     paraphrase_front_phrases: bool = False
     """Paraphrases may also move the sentence's closing phrase to its front ("Behind the blue ball, push the red
     ball."), so the translator meets the reference named before the ball to move."""
+    translator_tokens: bool = False
+    """The translator reads the encoder's state of every word piece (``TOKEN_READOUT``) through attention pooling
+    instead of the experiment's one-vector sentence readout (the paper's BERT embedding -> MLP). Baselines that feed
+    NL encodings to the policy keep the sentence readout."""
 
     @property
     def bc_steps(self) -> int:
@@ -131,6 +135,7 @@ class TalarConfig:
             "translator_learning_rate": self.translator_learning_rate,
             **({"translator_full_batch": True} if self.translator_full_batch else {"batch_size": self.batch_size}),
             "translator_steps": self.translator_steps,
+            **({"translator_tokens": True} if self.translator_tokens else {}),
             **(
                 {
                     "translator_paraphrases": self.translator_paraphrases,
@@ -411,7 +416,10 @@ def make_train_end_to_end(config: TalarConfig, vocab_size: int, max_tokens: int 
     ``make_train_translator``.
     """
     game_init, game_loss_and_rows = _referential_game(config, vocab_size, max_tokens)
-    generator, translator = _generator(config), Translator(config.spec, config.translator_hidden)
+    generator, translator = (
+        _generator(config),
+        Translator(config.spec, config.translator_hidden, config.translator_tokens),
+    )
 
     def loss_fn(params, rng, data: TaskLanguageData):
         rg_loss, rows = game_loss_and_rows(params, rng, data)
@@ -446,7 +454,7 @@ def make_train_translator(config: TalarConfig, spec: TaskLanguageSpec | None = N
     pass other targets (a goal one-hot, a latent-action code) with their own ``spec``.
     """
     spec = spec if spec is not None else config.spec
-    translator = Translator(spec, config.translator_hidden)
+    translator = Translator(spec, config.translator_hidden, config.translator_tokens)
 
     def init_params(rng: jax.Array, targets: jax.Array, data: TaskLanguageData):
         del targets
@@ -508,9 +516,10 @@ def with_paraphrases(data: TaskLanguageData, features: np.ndarray, sources: np.n
 
 
 def make_translate(config: TalarConfig, spec: TaskLanguageSpec | None = None):
-    """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L|)`` hard language codes."""
+    """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L|)`` hard language codes (token
+    states (S, T, D) with ``config.translator_tokens``)."""
     spec = spec if spec is not None else config.spec
-    translator = Translator(spec, config.translator_hidden)
+    translator = Translator(spec, config.translator_hidden, config.translator_tokens)
 
     def translate(translator_params, sentence_embeddings: jax.Array) -> jax.Array:
         return decode_translation(spec, translator.apply(translator_params, sentence_embeddings))

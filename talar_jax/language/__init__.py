@@ -4,10 +4,14 @@ from talar_jax.language.augment import paraphrase_variants
 from talar_jax.language.bert import BertConfig, BertModel, mean_pool
 from talar_jax.language.cache import (
     SENTENCE_READOUTS,
+    TOKEN_READOUT,
+    TOKEN_SLOTS,
+    TRANSLATOR_READOUTS,
     EmbeddingCache,
     build_cache,
     cached_sentence_features,
     default_cache_dir,
+    readout_features,
     sentence_features,
 )
 from talar_jax.language.encoder import BertEncoder, EncoderError, default_encoder_path, load_encoder
@@ -23,6 +27,9 @@ from talar_jax.language.instructions import (
 __all__ = [
     "DEVELOPMENT_FILE",
     "SENTENCE_READOUTS",
+    "TOKEN_READOUT",
+    "TOKEN_SLOTS",
+    "TRANSLATOR_READOUTS",
     "BertConfig",
     "BertEncoder",
     "BertModel",
@@ -40,5 +47,6 @@ __all__ = [
     "mean_pool",
     "paraphrase_variants",
     "register_instruction_format",
+    "readout_features",
     "sentence_features",
 ]

@@ -49,6 +49,14 @@ _ARRAY_FIELDS = (
 
 
 SENTENCE_READOUTS: tuple[str, ...] = ("sentence", "sentence+prefixes")
+"""What an experiment's translators and NL-encoding policies read of a sentence: one vector (S, F) per sentence."""
+TOKEN_READOUT = "tokens"
+"""A translator-only readout: the encoder's last hidden state of each word piece, (S, TOKEN_SLOTS, D), zero after
+the sentence's [SEP]; the translator pools it with attention (``Translator(reads_tokens=True)``)."""
+TOKEN_SLOTS = 32
+"""Word pieces the token readout holds per sentence, [CLS] and [SEP] included (CLEVR and kitchen instructions have at
+most 24); a longer sentence is refused with a one-line error."""
+TRANSLATOR_READOUTS: tuple[str, ...] = (*SENTENCE_READOUTS, TOKEN_READOUT)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -115,6 +123,8 @@ class EmbeddingCache:
             rows = zip(self.sentence_prefix_start, self.sentence_prefix_count)
             means = np.stack([self.prefix_embeddings[start : start + count].mean(0) for start, count in rows])
             return np.concatenate([self.sentence_embeddings, means], axis=1).astype(np.float32)
+        if readout == TOKEN_READOUT:
+            raise ValueError("the 'tokens' readout needs the encoder: use readout_features(cache, 'tokens', encoder)")
         raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
 
     @property
@@ -176,18 +186,27 @@ def sentence_features(
     description: str = "sentence features",
 ) -> np.ndarray:
     """(S, F) features of any sentences, computed as ``EmbeddingCache.sentence_features(readout)`` computes them for
-    the cached ones (the pooled embedding; with ``"sentence+prefixes"`` also the mean of the prefix embeddings).
+    the cached ones (the pooled embedding; with ``"sentence+prefixes"`` also the mean of the prefix embeddings), or
+    with ``"tokens"`` (S, TOKEN_SLOTS, D) per-token states (``TOKEN_READOUT``).
 
     Raises:
-        ValueError: an unknown readout, or a sentence without tokens (empty or only characters the encoder drops).
+        ValueError: an unknown readout, a sentence without tokens (empty or only characters the encoder drops), or
+            (``"tokens"``) one longer than ``TOKEN_SLOTS`` word pieces.
     """
-    if readout not in SENTENCE_READOUTS:
-        raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
+    if readout not in TRANSLATOR_READOUTS:
+        raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(TRANSLATOR_READOUTS)}")
     pieces = encoder.tokenize(list(sentences))
     for sentence, tokens in zip(sentences, pieces, strict=True):
         if not tokens:
             raise ValueError(f"sentence {sentence!r} has no words the encoder {encoder.name} can read")
+        if readout == TOKEN_READOUT and len(tokens) + 2 > TOKEN_SLOTS:
+            raise ValueError(
+                f"sentence {sentence!r} has {len(tokens)} word pieces; the token readout reads at most "
+                f"{TOKEN_SLOTS - 2}: shorten it"
+            )
     full = [encoder.with_specials(tokens) for tokens in pieces]
+    if readout == TOKEN_READOUT:
+        return encoder.token_states(full, TOKEN_SLOTS, batch_size=batch_size, progress=progress)
     if readout == "sentence":
         return encoder.embed_sequences(full, batch_size=batch_size, progress=progress, description=description)
     distinct: dict[tuple[int, ...], int] = {}  # sentences sharing a beginning share its prefixes: embed each once
@@ -207,9 +226,11 @@ def cached_sentence_features(
     readout: str = "sentence",
     cache_dir: str | os.PathLike | None = None,
     progress: bool = False,
+    description: str = "paraphrase features",
 ) -> np.ndarray:
     """``sentence_features`` stored once per (encoder, readout, sentences) in the language cache folder (for sentence
-    sets outside an env's instruction file, such as a translator's paraphrases); written atomically."""
+    sets outside an env's instruction file, such as a translator's paraphrases, and for the token readout); written
+    atomically (token states as float16, returned as float32)."""
     payload = json.dumps([CACHE_FORMAT, encoder.cache_key, readout, list(sentences)])
     key = hashlib.sha256(payload.encode()).hexdigest()
     directory = Path(cache_dir) if cache_dir is not None else default_cache_dir()
@@ -218,17 +239,31 @@ def cached_sentence_features(
         try:
             features = np.load(path, allow_pickle=False)
             if features.shape[0] == len(sentences):
-                return features
+                return features.astype(np.float32)
         except (OSError, ValueError, EOFError):
             pass
-    features = sentence_features(encoder, sentences, readout, progress=progress, description="paraphrase features")
+    features = sentence_features(encoder, sentences, readout, progress=progress, description=description)
     directory.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=directory, prefix=f".{path.name}.", suffix=".tmp", delete=False) as handle:
-        np.save(handle, features)
+        np.save(handle, features.astype(np.float16) if readout == TOKEN_READOUT else features)
         handle.flush()
         os.fsync(handle.fileno())
     os.replace(handle.name, path)
     return features
+
+
+def readout_features(
+    cache: EmbeddingCache, readout: str, encoder: BertEncoder | None = None, progress: bool = False
+) -> np.ndarray:
+    """What ``readout`` gives of every cached sentence: ``cache.sentence_features(readout)``, or for the token readout
+    the encoder's per-token states (computed once per machine, then read from the language cache folder)."""
+    if readout != TOKEN_READOUT:
+        return cache.sentence_features(readout)
+    if encoder is None:
+        raise ValueError("the 'tokens' readout needs the encoder")
+    if encoder.weights_sha256 != cache.weights_sha256:
+        raise ValueError(f"encoder {encoder.name} is not the one the cache was built with ({cache.encoder_name})")
+    return cached_sentence_features(encoder, cache.sentences, readout, progress=progress, description="token states")
 
 
 def default_cache_dir() -> Path:

@@ -222,6 +222,23 @@ class BertEncoder:
                 bar.update(len(chunk))
         return out
 
+    def token_states(
+        self, sequences: Sequence[Sequence[int]], length: int, batch_size: int = 256, progress: bool = False
+    ) -> np.ndarray:
+        """(N, length, D) float32 last hidden state of each token of full input sequences (with [CLS]/[SEP]), zero
+        after a sequence's last token; every sequence must have at most ``length`` tokens. One compiled shape."""
+        count = len(sequences)
+        out = np.zeros((count, length, self.embedding_dim), np.float32)
+        rows = min(batch_size, 1 << max(count - 1, 0).bit_length())
+        with tqdm(total=count, desc="token states", disable=not progress, unit="seq") as bar:
+            for start in range(0, count, rows):
+                batch = list(sequences[start : start + rows])
+                ids, mask = self.pad(batch + [[self.pad_id]] * (rows - len(batch)), length)
+                hidden = np.asarray(self._hidden(self.params, jnp.asarray(ids), jnp.asarray(mask)))
+                out[start : start + len(batch)] = (hidden * mask[..., None])[: len(batch)]
+                bar.update(len(batch))
+        return out
+
     def encode(self, sentences: Sequence[str], **kwargs) -> np.ndarray:
         """(N, D) float32 sentence embeddings (mean pooling over non-pad tokens, L2-normalised)."""
         return self.embed_sequences([self.with_specials(p) for p in self.tokenize(sentences)], **kwargs)
