@@ -393,6 +393,33 @@ def test_sentence_readouts(tiny_cache):
         cache.sentence_features("cls")
 
 
+def test_token_readout_is_the_encoders_states_whose_mean_is_the_sentence_embedding(tiny_cache, tiny_encoder, tmp_path):
+    """'tokens': (S, TOKEN_SLOTS, D) last hidden states, zero after [SEP]; mean-pooled and normalised they give the
+    pooled sentence embedding, and the cached copy (float16 on disk) reads back as the same states."""
+    from talar_jax.language import TOKEN_SLOTS, cached_sentence_features, readout_features, sentence_features
+
+    cache, sentences = tiny_cache, list(tiny_cache.sentences[:9])
+    states = sentence_features(tiny_encoder, sentences, "tokens")
+    assert states.shape == (9, TOKEN_SLOTS, cache.embedding_dim) and states.dtype == np.float32
+    lengths = np.array([len(p) + 2 for p in tiny_encoder.tokenize(sentences)])
+    real = np.any(states != 0, axis=-1)
+    np.testing.assert_array_equal(real, np.arange(TOKEN_SLOTS)[None] < lengths[:, None])
+    pooled = states.sum(1) / lengths[:, None]
+    pooled /= np.linalg.norm(pooled, axis=1, keepdims=True)
+    np.testing.assert_allclose(pooled, cache.sentence_embeddings[:9], atol=1e-5)
+    stored = cached_sentence_features(tiny_encoder, sentences, "tokens", cache_dir=tmp_path)
+    again = cached_sentence_features(tiny_encoder, sentences, "tokens", cache_dir=tmp_path)
+    assert again.dtype == np.float32 and len(list(tmp_path.iterdir())) == 1
+    np.testing.assert_allclose(again, stored, atol=2e-2 * np.abs(stored).max())
+    with pytest.raises(ValueError, match="needs the encoder"):
+        cache.sentence_features("tokens")
+    with pytest.raises(ValueError, match="needs the encoder"):
+        readout_features(cache, "tokens")
+    long = " ".join(["open the microwave"] * 12)
+    with pytest.raises(ValueError, match=r"word pieces; the token readout reads at most 30: shorten it$"):
+        sentence_features(tiny_encoder, [long], "tokens")
+
+
 def test_cache_subset_matches_instruction_splits(tiny_cache):
     for is_train, split in ((True, "train"), (False, "test")):
         part = tiny_cache.subset(is_train=is_train)

@@ -82,6 +82,7 @@ TRANSLATOR_READS = RG_READS | {
     "talar.translator_steps",
     "talar.translator_paraphrases",
     "talar.translator_full_batch",
+    "talar.translator_tokens",
 }
 PARAPHRASE_READS = {
     "talar.paraphrase_probability",
@@ -126,6 +127,24 @@ def test_paraphrase_settings_reach_the_translator_key_only_when_paraphrases_are_
         assert keys["talar/task_language"] == reference["talar/task_language"], change
         off = dataclasses.replace(base, talar=dataclasses.replace(base.talar, **change))
         assert _keys(off)["talar/translator"] == _keys(base)["talar/translator"], change  # not read without paraphrases
+
+
+@pytest.mark.parametrize("env", ["clevr", "kitchen"])
+def test_the_token_readout_reruns_every_translator_and_no_nl_encoding_baseline(env):
+    """``talar.translator_tokens`` is what translators read: TALAR's, Handcrafted's and GLA's translators and the
+    end-to-end stage rerun; the game, GLA's auto-encoder and the BERT-* encodings (sentence readout) do not (every
+    IFP key hashes the whole config, so the policies rerun regardless)."""
+
+    def keys(method, tokens):
+        config = default_config(env, method=method, physics="c")
+        return _keys(dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_tokens=tokens)))
+
+    rerun = {"talar/translator", "handcrafted/translator", "gla/translator", "end-to-end/joint"}
+    for method in METHODS:
+        off, on = keys(method, False), keys(method, True)
+        for stage in off:
+            if stage != "ifp":
+                assert (off[stage] != on[stage]) == (stage in rerun), f"{method}: {stage}"
 
 
 def test_bert_encoding_size_reaches_the_ifp_key():

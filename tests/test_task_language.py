@@ -5,6 +5,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from talar_jax.optim import AdamFit, fit_seeds
@@ -362,3 +363,48 @@ def test_an_interrupted_fit_resumes_from_its_checkpoint_and_ends_where_an_uninte
     np.testing.assert_allclose(params, whole_params, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(losses, whole_losses, rtol=1e-5, atol=1e-6)
     assert losses.shape == (2, 60)
+
+
+def test_token_translator_finds_the_word_its_context_marks_where_a_mean_pool_cannot():
+    """Toy 'sentences' of contextual token states: two colour words whose states differ only by a relation marker on
+    the reference colour, in either order, padded with zero rows. Which colour is the reference is invisible to the
+    mean of the tokens (colour_a + colour_b + markers, symmetric in the two), so the paper's pooled-input translator
+    stays near chance, while the attention-pooling translator (``reads_tokens``) learns it; padding never matters."""
+    rng = np.random.default_rng(0)
+    colours, dim, slots = 4, 16, 6
+    colour_vectors, marker = rng.normal(size=(colours, dim)), rng.normal(size=dim)
+    pairs = [(a, b) for a in range(colours) for b in range(colours) if a != b]
+    states, targets = np.zeros((2 * len(pairs), slots, dim), np.float32), []
+    for i, (subject, reference) in enumerate(pairs):
+        for j, order in enumerate(((0, 2), (2, 0))):  # subject first or reference first, at other positions
+            row = states[2 * i + j]
+            row[order[0]] = colour_vectors[subject]
+            row[order[1]] = colour_vectors[reference] + marker
+            row[1] = marker  # the relation word itself
+            targets.append(reference)
+    spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=colours)
+    targets = jax.nn.one_hot(np.array(targets), colours)
+    inputs = {True: jnp.asarray(states), False: jnp.asarray(states.sum(1) / 3.0)}  # the mean over real tokens
+    accuracy = {}
+    for reads_tokens in (True, False):
+        translator = Translator(spec, (64, 64), reads_tokens=reads_tokens, attention_size=32)
+        x = inputs[reads_tokens]
+        params = translator.init(jax.random.PRNGKey(0), x[:1])
+        optimiser = optax.adam(3e-3)
+        state = optimiser.init(params)
+
+        @jax.jit
+        def step(params, state, translator=translator, x=x):
+            grads = jax.grad(lambda p: translator_loss(spec, translator.apply(p, x), targets))(params)
+            updates, state = optimiser.update(grads, state)
+            return optax.apply_updates(params, updates), state
+
+        for _ in range(400):
+            params, state = step(params, state)
+        predicted = np.asarray(translator.apply(params, x)).argmax(-1)
+        accuracy[reads_tokens] = float((predicted == np.asarray(targets).argmax(-1)).mean())
+        if reads_tokens:  # more padding slots change nothing
+            padded = jnp.concatenate([x, jnp.zeros((x.shape[0], 3, dim))], axis=1)
+            np.testing.assert_allclose(translator.apply(params, padded), translator.apply(params, x), atol=1e-5)
+    assert accuracy[True] == 1.0, accuracy
+    assert accuracy[False] <= 0.6, accuracy
