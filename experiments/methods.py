@@ -53,6 +53,7 @@ from talar_jax.talar import (
     make_translate,
     prepare_referential_data,
     task_language_quality,
+    trim_token_padding,
     with_paraphrases,
 )
 from talar_jax.task_language import TaskLanguageSpec
@@ -234,7 +235,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
         data = ctx.translator_data()
         fit, timings = make_train_translator(config.talar, spec), {}
         start = time.perf_counter()
-        train_data = paraphrased_data(ctx, data)  # encodes the paraphrases once per machine (then cached)
+        train_data = trim_token_padding(paraphrased_data(ctx, data))  # paraphrases: encoded once per machine
         paraphrase_s = time.perf_counter() - start
         params, losses = fit_seeds(
             fit,
@@ -340,7 +341,7 @@ def setup_end_to_end(ctx: MethodContext) -> MethodSetup:
         params, losses = fit_seeds(
             fit,
             ctx.seed_keys("end-to-end"),
-            prepare_referential_data(config.talar, data),
+            prepare_referential_data(config.talar, trim_token_padding(data)),
             label="end-to-end/joint",
             progress=config.progress,
             timings=timings,

@@ -515,6 +515,16 @@ def with_paraphrases(data: TaskLanguageData, features: np.ndarray, sources: np.n
     return data._replace(sentence_embeddings=embeddings, sentence_variants=jnp.asarray(variants, jnp.int32))
 
 
+def trim_token_padding(data: TaskLanguageData) -> TaskLanguageData:
+    """``data`` whose token-state translator input (S, T, D) keeps only the slots some sentence fills: the same
+    translations (padding never changes them), less work per step. Sentence-vector inputs are returned as they are."""
+    features = data.sentence_embeddings
+    if features.ndim != 3:
+        return data
+    filled = np.flatnonzero(np.asarray(jnp.any(features != 0, axis=(0, 2))))
+    return data._replace(sentence_embeddings=features[:, : int(filled.max()) + 1])
+
+
 def make_translate(config: TalarConfig, spec: TaskLanguageSpec | None = None):
     """Returns ``translate(translator_params, sentence_embeddings (S, D)) -> (S, |L|)`` hard language codes (token
     states (S, T, D) with ``config.translator_tokens``)."""

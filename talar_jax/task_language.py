@@ -171,16 +171,15 @@ class Translator(nn.Module):
     """p_phi: sentence embedding -> logits of L_T (predicate logits, then argument logits); Fig. 2c.
 
     With ``reads_tokens`` the input is the encoder's state of each word piece, (..., T, D), zero after the last one
-    (``TOKEN_READOUT``): ``attention_heads`` attention poolings (a score per token from a ReLU layer, softmax over
-    the sentence's tokens, a weighted sum of a linear projection) replace the mean pooling before the same MLP, so
-    the translator can learn which words name the goal wherever they stand in the sentence.
+    (``TOKEN_READOUT``): ``attention_heads`` attention poolings (a linear score per token, softmax over the
+    sentence's tokens, the weighted sum of the states) replace the mean pooling before the same MLP, so the translator
+    can learn which words name the goal wherever they stand in the sentence. Padding never changes the output.
     """
 
     spec: TaskLanguageSpec = TaskLanguageSpec()
     hidden_sizes: Sequence[int] = (256, 256, 256, 256)
     reads_tokens: bool = False
     attention_heads: int = 4
-    attention_size: int = 128
 
     @nn.compact
     def __call__(self, sentence_embedding: jax.Array) -> jax.Array:
@@ -189,11 +188,10 @@ class Translator(nn.Module):
         x = sentence_embedding
         if self.reads_tokens:
             real = jnp.any(x != 0, axis=-1, keepdims=True)  # (..., T, 1): a token, not padding
-            scores = nn.Dense(self.attention_heads)(nn.relu(nn.Dense(self.attention_size)(x)))
-            weights = jax.nn.softmax(jnp.where(real, scores, -1e9), axis=-2)  # (..., T, heads)
-            values = nn.Dense(self.attention_size)(x)  # (..., T, A)
-            pooled = jnp.einsum("...th,...ta->...ha", weights, values)
-            x = pooled.reshape(*pooled.shape[:-2], self.attention_heads * self.attention_size)
+            scores = jnp.where(real, nn.Dense(self.attention_heads)(x), -1e9)
+            weights = jax.nn.softmax(scores, axis=-2)  # (..., T, heads)
+            pooled = jnp.einsum("...th,...td->...hd", weights, x)
+            x = pooled.reshape(*pooled.shape[:-2], self.attention_heads * x.shape[-1])
         return ReluMLP((*self.hidden_sizes, self.spec.size))(x)
 
 

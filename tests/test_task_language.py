@@ -1,5 +1,6 @@
 """TALAR's task language: Gumbel-softmax, generator/translator shapes and losses, and learning on a toy task."""
 
+import collections
 import dataclasses
 
 import jax
@@ -21,6 +22,7 @@ from talar_jax.talar import (
     referential_token_rows,
     sample_referential_batch,
     task_language_quality,
+    trim_token_padding,
     with_paraphrases,
 )
 from talar_jax.task_language import (
@@ -387,7 +389,7 @@ def test_token_translator_finds_the_word_its_context_marks_where_a_mean_pool_can
     inputs = {True: jnp.asarray(states), False: jnp.asarray(states.sum(1) / 3.0)}  # the mean over real tokens
     accuracy = {}
     for reads_tokens in (True, False):
-        translator = Translator(spec, (64, 64), reads_tokens=reads_tokens, attention_size=32)
+        translator = Translator(spec, (64, 64), reads_tokens=reads_tokens)
         x = inputs[reads_tokens]
         params = translator.init(jax.random.PRNGKey(0), x[:1])
         optimiser = optax.adam(3e-3)
@@ -406,5 +408,7 @@ def test_token_translator_finds_the_word_its_context_marks_where_a_mean_pool_can
         if reads_tokens:  # more padding slots change nothing
             padded = jnp.concatenate([x, jnp.zeros((x.shape[0], 3, dim))], axis=1)
             np.testing.assert_allclose(translator.apply(params, padded), translator.apply(params, x), atol=1e-5)
+            holder = collections.namedtuple("Holder", "sentence_embeddings")  # what trim_token_padding reads
+            assert trim_token_padding(holder(padded)).sentence_embeddings.shape == (x.shape[0], 3, dim)
     assert accuracy[True] == 1.0, accuracy
     assert accuracy[False] <= 0.6, accuracy
