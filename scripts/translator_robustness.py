@@ -5,7 +5,8 @@ on). No policy is trained: agreement is what the translator contributes.
     python scripts/translator_robustness.py runs/kitchen-4M --env kitchen --paraphrases 0 8 16 --json out.json
 
 RUN is an experiment folder with ``oracle/dataset`` and ``talar/task_language/params.msgpack``; the run is assumed to
-use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``.
+use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``;
+``--tokens on`` / ``off`` sets whether the translators read token states (``TalarConfig.translator_tokens``).
 For every ``--paraphrases`` value (0: the paper's translator) it trains one translator per seed of the run from the
 same seed keys and prints agreement per seed and mean ± std; the translators are kept in
 ``RUN/translator-robustness/`` and reused by a later call. With ``--episodes N`` it also runs the run's own
