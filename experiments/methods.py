@@ -21,6 +21,7 @@ import numpy as np
 
 from talar_jax.baselines import (
     EncodingLayerConditioner,
+    FinetunedBertConditioner,
     goal_one_hot,
     make_behaviour_cloning,
     make_gla_codes,
@@ -209,6 +210,9 @@ def method_stage_keys(config: ExperimentConfig, upstream_key: str, cache_key: st
         return {f"{method}/behaviour_cloning": behaviour_cloning_key(config, method, upstream_key, cache_key)}
     if method.startswith("bert-"):  # no stage of its own: the encoding's inputs
         return {method: stable_hash(method, cache_key, config.sentence_readout, config.talar.spec.size)}
+    if method.startswith("finetuned-"):  # the same, with BERT trained from the encoder's weights
+        t = config.talar
+        return {method: stable_hash(method, cache_key, t.spec.size, t.finetuned_bert_first_layer)}
     if method.startswith("aligned-"):  # the same, with the generator's architecture
         t = config.talar
         return {method: stable_hash(method, cache_key, config.sentence_readout, t.spec, t.generator_hidden)}
@@ -445,6 +449,31 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned:
     return MethodSetup(conditioner, params, stage.key, None, ctx.named(stage))
 
 
+def _finetuned_setup(ctx: MethodContext, binary: bool) -> MethodSetup:
+    """Appendix E.5: BERT-binary / -continuous with BERT trained by the policy's loss (``FinetunedBertConditioner``);
+    the encoding layer reads the pooled sentence embedding (the paper's BERT readout: a prefix readout would need a
+    BERT pass per prefix inside the loop)."""
+    config, cache = ctx.config, ctx.cache
+    encoder = load_encoder(config.encoder)
+    mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
+    lookups = ctx.lookups()
+    train_lookup, train_counts = lookups["train"]
+    train_rows = train_lookup[np.arange(train_lookup.shape[1])[None, :] < train_counts[:, None]]
+    conditioner = FinetunedBertConditioner(
+        encoder.config,
+        encoder.params,
+        cache.token_ids,
+        mask,
+        lookups,
+        config.talar.spec.size,
+        binary,
+        config.talar.finetuned_bert_first_layer,
+        train_rows,
+    )
+    ((_, key),) = method_stage_keys(config, ctx.upstream_key, cache.key).items()
+    return MethodSetup(conditioner, None, key, None)
+
+
 METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
     "talar": setup_talar,
     "onehot": setup_onehot,
@@ -457,6 +486,8 @@ METHODS: dict[str, Callable[[MethodContext], MethodSetup]] = {
     "aligned-bert-binary": lambda ctx: _encoding_setup(ctx, binary=True, pretrained=False, aligned=True),
     "aligned-bert-continuous": lambda ctx: _encoding_setup(ctx, binary=False, pretrained=False, aligned=True),
     "end-to-end": setup_end_to_end,
+    "finetuned-bert-binary": lambda ctx: _finetuned_setup(ctx, binary=True),
+    "finetuned-bert-continuous": lambda ctx: _finetuned_setup(ctx, binary=False),
 }
 PAPER_COMPARISON: tuple[str, ...] = tuple(METHODS)[:8]
 """The eight methods of the paper's Fig. 4 (the Aligned baselines belong to Appendix E.3)."""
@@ -472,4 +503,6 @@ METHOD_LABELS: dict[str, str] = {
     "aligned-bert-binary": "Aligned BERT-binary",
     "aligned-bert-continuous": "Aligned BERT-continuous",
     "end-to-end": "End-to-end TALAR",
+    "finetuned-bert-binary": "Fine-tuned BERT-binary",
+    "finetuned-bert-continuous": "Fine-tuned BERT-continuous",
 }

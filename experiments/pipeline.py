@@ -62,7 +62,8 @@ class ExperimentConfig:
     """Instruction encoding fed to the policy: talar, onehot, bert-binary, bert-continuous, pretrained-bert-binary,
     pretrained-bert-continuous, gla, handcrafted, aligned-bert-binary, aligned-bert-continuous (Appendix E.3: the
     TL generator's architecture as the encoding layer), end-to-end (Appendix E.6: TALAR's generator and translator
-    trained jointly)."""
+    trained jointly), finetuned-bert-binary, finetuned-bert-continuous (Appendix E.5: BERT-* with BERT trained by
+    the policy's loss)."""
     out: Path | None = None
     """Output folder (default runs/<env>; a run found there is resumed, finished stages with unchanged inputs are
     reused)."""

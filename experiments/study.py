@@ -11,6 +11,11 @@ NAME is one of
   BERT-continuous; the paper finds the aligned baselines better than the plain ones but below TALAR.
 * ``end-to-end`` (paper Fig. 15, Appendix E.6): TALAR against ``--method end-to-end`` (generator, receiver and
   translator trained jointly); the paper finds the two-stage training better.
+* ``finetuned-bert`` (paper Fig. 14, Appendix E.5): BERT-binary / BERT-continuous against ``--method
+  finetuned-bert-binary`` / ``finetuned-bert-continuous``, whose BERT the policy's loss trains too (the one place
+  the language model runs inside a training loop: one batched forward pass over the training instructions per
+  minibatch, and one over every instruction per rollout); ``--talar.finetuned-bert-first-layer K`` trains only
+  the encoder layers from K up (cheaper). The paper finds the fine-tuned baselines struggle to succeed at all.
 
 Each setting is one experiment folder under ``--out`` (default ``runs/study-<name>-<env>``) with every stage cached,
 so an interrupted study resumes where it stopped. The ablation's settings share the first one's oracle and task
@@ -41,7 +46,7 @@ from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
 
-STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end")
+STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
     "talar",
     "aligned-bert-binary",
@@ -49,7 +54,17 @@ ALIGNED_METHODS: tuple[str, ...] = (
     "bert-binary",
     "bert-continuous",
 )
-METHOD_STUDIES: dict[str, tuple[str, ...]] = {"aligned": ALIGNED_METHODS, "end-to-end": ("talar", "end-to-end")}
+FINETUNED_METHODS: tuple[str, ...] = (
+    "bert-binary",
+    "bert-continuous",
+    "finetuned-bert-binary",
+    "finetuned-bert-continuous",
+)
+METHOD_STUDIES: dict[str, tuple[str, ...]] = {
+    "aligned": ALIGNED_METHODS,
+    "end-to-end": ("talar", "end-to-end"),
+    "finetuned-bert": FINETUNED_METHODS,
+}
 """Studies that compare methods (one setting per method) rather than TALAR's settings."""
 
 PAPER = {
@@ -59,6 +74,8 @@ PAPER = {
     "end-to-end": "training the TL generator and the translator apart is better than jointly (Fig. 15, kitchen)",
     "aligned": "the aligned baselines improve on the plain ones but stay below TALAR in learning speed and final "
     "score (Fig. 12, kitchen)",
+    "finetuned-bert": "with BERT's parameters trained during policy learning, the baselines struggle to succeed at "
+    "all (Fig. 14, kitchen)",
 }
 
 
@@ -66,8 +83,9 @@ PAPER = {
 class StudyArgs:
     """Which study, over which settings, on the experiment settings every run shares."""
 
-    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned", "end-to-end"]]
-    """The study: ablation (Fig. 7), dataset-size (Fig. 13), aligned (Fig. 12) or end-to-end (Fig. 15)."""
+    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert"]]
+    """The study: ablation (Fig. 7), dataset-size (Fig. 13), aligned (Fig. 12), end-to-end (Fig. 15) or
+    finetuned-bert (Fig. 14)."""
     experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(env="kitchen")
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe; ``--out`` defaults to runs/study-<name>-<env>)."""
@@ -129,12 +147,18 @@ def share_oracle(first: Path, target: Path) -> None:
     os.symlink(os.path.relpath(source.resolve(), target.resolve()), target / "oracle")
 
 
-HEADER = "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed |"
+HEADER = "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed | IFP wall-clock (min) |"
 
 
 def _cell(values: list[float]) -> str:
     rates = 100 * np.asarray(values)
     return f"{rates.mean():.1f} ± {rates.std():.1f}"
+
+
+def ifp_seconds(summary: dict[str, Any]) -> float | None:
+    """Wall-clock seconds of a setting's IFP stage (all its seeds, when it ran), from its run summary."""
+    seconds = [value for name, value in summary.get("stage_seconds", {}).items() if name.endswith("ifp")]
+    return float(seconds[0]) if seconds else None
 
 
 def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals: dict[str, dict[str, Any]]) -> str:
@@ -146,12 +170,15 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
     lines = [
         f"### {title}",
         "",
-        "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed |",
+        HEADER,
     ]
-    lines.append("|---|---:|---:|---:|")
+    lines.append("|---|---:|---:|---:|---:|")
     for label, summary in finals.items():
         success = summary["final_success"]
-        lines.append(f"| {label} | {_cell(success['train'])} | {_cell(success['test'])} | {steps[label]:,} |")
+        minutes = f"{ifp_seconds(summary) / 60:.1f}" if ifp_seconds(summary) is not None else "-"
+        lines.append(
+            f"| {label} | {_cell(success['train'])} | {_cell(success['test'])} | {steps[label]:,} | {minutes} |"
+        )
     lines += ["", f"Paper: {PAPER[args.name]}."]
     table = "\n".join(lines) + "\n"
     (out / "study.md").write_text(table)

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from talar_jax.conditioning import Conditioner, InstructionSampler
+from talar_jax.language.bert import BertModel, mean_pool
 from talar_jax.networks import (
     OBS_NORMALIZER,
     init_observation_stats,
@@ -171,6 +172,86 @@ class EncodingLayerConditioner(Conditioner):
         return jnp.where(instruction >= 0, out, 0.0)
 
 
+class FinetunedBertConditioner(Conditioner):
+    """Appendix E.5's fine-tuned BERT-binary / -continuous: the encoding layer of ``EncodingLayerConditioner`` on the
+    pooled sentence embedding of a BERT whose weights the policy's loss trains too (from the pre-trained ones).
+
+    The language model runs inside the training loop here only: the loss (``apply_batch``) encodes every training
+    instruction in one batched forward pass per minibatch (a minibatch's rows then gather from it), and a rollout or
+    evaluation encodes every instruction once (``freeze``) rather than once per env step. With
+    ``first_layer > 0`` only the top encoder layers train: the hidden state below them is computed once from the
+    pre-trained weights and kept as a constant (cheaper; the paper trains all of BERT, ``first_layer = 0``).
+
+    Args:
+        bert_config: the encoder's ``BertConfig``.
+        pretrained: the encoder's ``{"params": ...}`` (``BertEncoder.params``).
+        input_ids, attention_mask: (N, T) word pieces with [CLS]/[SEP] of every instruction (cache rows), padded.
+        goal_sentences_by_split: as ``InstructionTableConditioner``.
+        size, binary: as ``EncodingLayerConditioner``.
+        first_layer: index of the lowest trained encoder layer (0: the embeddings and every layer).
+        loss_rows: the instruction ids the loss sees (the training split's): the rows ``apply_batch`` encodes.
+    """
+
+    def __init__(
+        self,
+        bert_config: Any,
+        pretrained: Mapping,
+        input_ids: Any,
+        attention_mask: Any,
+        goal_sentences_by_split: Mapping,
+        size: int,
+        binary: bool,
+        first_layer: int,
+        loss_rows: Any,
+    ):
+        layers = bert_config.num_hidden_layers
+        if not 0 <= first_layer < layers:
+            raise ValueError(f"first trained BERT layer must lie in 0..{layers - 1}, got {first_layer}")
+        self.mask = jnp.asarray(attention_mask, jnp.int32)
+        self.model = BertModel(bert_config, layers=(first_layer, layers))
+        params = pretrained["params"]
+        if first_layer == 0:
+            self.inputs = jnp.asarray(input_ids, jnp.int32)
+            self.pretrained = params
+        else:  # the frozen lower layers run once, here
+            below = BertModel(bert_config, layers=(0, first_layer))
+            self.inputs = jax.jit(below.apply)(pretrained, jnp.asarray(input_ids, jnp.int32), self.mask)
+            self.pretrained = {f"layer_{i}": params[f"layer_{i}"] for i in range(first_layer, layers)}
+        self.layer = NLEncodingLayer(size, binary)
+        self.size = size
+        self.hidden_size = bert_config.hidden_size
+        self.loss_rows = jnp.asarray(np.unique(np.asarray(loss_rows)), jnp.int32)
+        self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.mask))
+
+    def init(self, rng: jax.Array) -> Any:
+        layer = self.layer.init(rng, jnp.zeros((1, self.hidden_size), jnp.float32))
+        return {"bert": self.pretrained, "layer": layer}
+
+    def encode(self, params: Any, rows: jax.Array) -> jax.Array:
+        """(R, size) codes of the instructions ``rows`` under ``params`` (one BERT pass over them)."""
+        mask = self.mask[rows]
+        hidden = self.model.apply({"params": params["bert"]}, self.inputs[rows], mask)
+        return self.layer.apply(params["layer"], mean_pool(hidden, mask), None)
+
+    def freeze(self, params: Any) -> Any:
+        return {"codes": jax.lax.stop_gradient(self.encode(params, jnp.arange(len(self.mask))))}
+
+    def sample(self, rng: jax.Array, goal: jax.Array, split: str) -> jax.Array:
+        return self.sampler.sample(rng, goal, split)
+
+    def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
+        return self.apply_batch(params, jnp.asarray(instruction)[None])[0]
+
+    def apply_batch(self, params: Any, instructions: jax.Array) -> jax.Array:
+        if "codes" in params:  # frozen: every instruction's code
+            codes = params["codes"]
+        else:  # the loss: the training instructions' codes, one forward pass (others stay zero)
+            codes = jnp.zeros((len(self.mask), self.size), jnp.float32)
+            codes = codes.at[self.loss_rows].set(self.encode(params, self.loss_rows))
+        out = codes[jnp.maximum(instructions, 0)]
+        return jnp.where((instructions >= 0)[:, None], out, 0.0)
+
+
 def make_behaviour_cloning(
     env: Any,
     conditioner: Conditioner,
@@ -203,7 +284,7 @@ def make_behaviour_cloning(
         if OBS_NORMALIZER in params:  # statistics, not parameters: zero gradient, so Adam leaves them
             params = {**params, OBS_NORMALIZER: jax.lax.stop_gradient(params[OBS_NORMALIZER])}
         rows = jax.random.randint(rng_step, (batch_size,), 0, states.shape[0])
-        cond = jax.vmap(conditioner.apply, in_axes=(None, 0))(params["conditioner"], instructions[rows])
+        cond = conditioner.apply_batch(params["conditioner"], instructions[rows])
         dist = networks.policy.apply(params["policy"], network_inputs(params, states[rows], cond))
         return -networks.distribution.log_prob(dist, actions[rows]).mean()
 

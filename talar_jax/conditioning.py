@@ -44,6 +44,17 @@ class Conditioner(abc.ABC):
     def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
         """(size,) float32 conditioning vector of an instruction id (zeros for -1)."""
 
+    def apply_batch(self, params: Any, instructions: jax.Array) -> jax.Array:
+        """(B, size) vectors of (B,) instruction ids: what the policy's loss reads (``apply`` on each by default; a
+        conditioner with a costly shared encoder overrides it to run the encoder once per batch)."""
+        return jax.vmap(self.apply, in_axes=(None, 0))(params, instructions)
+
+    def freeze(self, params: Any) -> Any:
+        """Parameters ``apply`` / ``apply_batch`` read while acting with fixed parameters (a rollout, an
+        evaluation): ``params`` itself by default; a conditioner with a costly encoder precomputes every
+        instruction's vector here, once per rollout instead of once per env step."""
+        return params
+
 
 class GoalOneHotConditioner(Conditioner):
     """The oracle's conditioner: the instruction id is the goal id and the vector is its one-hot."""

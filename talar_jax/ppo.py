@@ -188,8 +188,12 @@ class _Learner:
 
     # --- network application -------------------------------------------------------------------
     def _inputs(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array) -> jax.Array:
-        cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+        cond = self.conditioner.apply_batch(params["conditioner"], instruction)
         return network_inputs(params, obs, cond)
+
+    def _acting(self, params: dict[str, Any]) -> dict[str, Any]:
+        """``params`` with the conditioner's acting form (``Conditioner.freeze``): fixed during a rollout."""
+        return {**params, "conditioner": self.conditioner.freeze(params["conditioner"])}
 
     def policy_step(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array, rng: jax.Array):
         """Batched acting: (action, log_prob, value) for (N, obs) observations."""
@@ -261,7 +265,7 @@ class _Learner:
         """One PPO update: rollout, normalised rewards, GAE, ``num_epochs`` x minibatch SGD."""
         c = self.config
         rng, rng_unroll, rng_sgd = jax.random.split(state.rng, 3)
-        policy_step = functools.partial(self.policy_step, state.params)
+        policy_step = functools.partial(self.policy_step, self._acting(state.params))
         env_carry, traj = generate_unroll(self.env, state.env, policy_step, rng_unroll, c.rollout_length)
         _, _, bootstrap = policy_step(env_carry.state.obs, env_carry.instruction, rng)
         normalizer, rewards = state.normalizer, traj.reward
@@ -307,9 +311,10 @@ class _Learner:
     def evaluate(self, params: dict[str, Any], rng: jax.Array, split: str = "train") -> dict[str, jax.Array]:
         """``eval_episodes`` fresh episodes with instructions from ``split`` (see ``evaluate_episodes``)."""
         policy = self.make_policy(params, self.config.eval_deterministic)
+        conditioner_params = self.conditioner.freeze(params["conditioner"])
 
         def act(obs: jax.Array, instruction: jax.Array, rng_act: jax.Array) -> jax.Array:
-            cond = jax.vmap(self.conditioner.apply, in_axes=(None, 0))(params["conditioner"], instruction)
+            cond = self.conditioner.apply_batch(conditioner_params, instruction)
             return policy(obs, cond, rng_act)
 
         return evaluate_episodes(self.eval_envs[check_split(split)], act, rng, self.config.eval_episodes)

@@ -97,6 +97,9 @@ class TalarConfig:
     """The translator reads the encoder's state of every word piece (``TOKEN_READOUT``) through attention pooling
     instead of the experiment's one-vector sentence readout (the paper's BERT embedding -> MLP). Baselines that feed
     NL encodings to the policy keep the sentence readout."""
+    finetuned_bert_first_layer: int = 0
+    """The fine-tuned BERT-* baselines (Appendix E.5) train BERT's encoder layers from this one up, and its
+    embeddings when 0 (the paper's: all of BERT); the layers below keep their pre-trained weights and run once."""
 
     @property
     def bc_steps(self) -> int:

@@ -3,11 +3,13 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from talar_jax.baselines import (
     AlignedEncodingLayer,
     EncodingLayerConditioner,
+    FinetunedBertConditioner,
     NLEncodingLayer,
     goal_one_hot,
     make_gla_codes,
@@ -15,7 +17,11 @@ from talar_jax.baselines import (
     one_hot_table,
     straight_through_bernoulli,
 )
+from talar_jax.language import BertModel, load_encoder
+from talar_jax.ppo import PPOConfig, make_train, run_ppo
 from talar_jax.task_language import TaskLanguageGenerator, TaskLanguageSpec
+from tests.conftest import TINY_BERT
+from tests.point_env import PointConfig, PointEnv
 
 
 def test_straight_through_bernoulli_values_and_gradient():
@@ -83,3 +89,91 @@ def test_gla_autoencoder_learns_to_reconstruct_goal_dependent_changes():
     # The latent code identifies the goal: at most one goal per code among frequent codes.
     purity = np.mean([np.bincount(goals[(codes == c).all(1)]).max() / (codes == c).all(1).sum() for c in codes[:200]])
     assert purity > 0.9, purity
+
+
+# ------------------------------------------------------------------------------------ fine-tuned BERT (Fig. 14)
+
+
+def _token_sentences(encoder, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` distinct random word-piece sequences of the tiny encoder's vocabulary with [CLS]/[SEP], padded."""
+    rng = np.random.default_rng(seed)
+    ordinary = [
+        i for i in range(encoder.config.vocab_size) if i not in (encoder.pad_id, encoder.cls_id, encoder.sep_id)
+    ]
+    sequences = [encoder.with_specials(rng.choice(ordinary, rng.integers(3, 9)).tolist()) for _ in range(count)]
+    return encoder.pad(sequences)
+
+
+def test_bert_layer_slices_compose_to_the_whole_model():
+    encoder = load_encoder(TINY_BERT)
+    ids, mask = _token_sentences(encoder, 5)
+    whole = encoder.hidden_states(ids, mask)
+    layers = encoder.config.num_hidden_layers
+    below = BertModel(encoder.config, layers=(0, 1)).apply(encoder.params, ids, mask)
+    above = BertModel(encoder.config, layers=(1, layers)).apply(encoder.params, below, mask)
+    np.testing.assert_allclose(np.asarray(above) * mask[..., None], whole * mask[..., None], atol=1e-5)
+    with pytest.raises(ValueError, match="0 <= first <= stop"):
+        BertModel(encoder.config, layers=(1, layers + 1)).apply(encoder.params, below, mask)
+
+
+@pytest.mark.parametrize("first_layer", [0, 1])
+def test_finetuned_bert_starts_at_the_frozen_encoding_and_its_loss_trains_bert(first_layer):
+    encoder = load_encoder(TINY_BERT)
+    ids, mask = _token_sentences(encoder, 8)
+    lookup = {"train": (np.arange(8).reshape(4, 2), np.full(4, 2))}
+    train_rows = np.array([0, 1, 2, 3, 4, 5])  # rows 6, 7 only ever read frozen
+    conditioner = FinetunedBertConditioner(
+        encoder.config, encoder.params, ids, mask, lookup, 6, False, first_layer, train_rows
+    )
+    params = conditioner.init(jax.random.PRNGKey(0))
+    trained = set(params["bert"])
+    assert trained == ({"embeddings", "layer_0", "layer_1"} if first_layer == 0 else {"layer_1"})
+    # at the start, the codes are the frozen BERT-continuous layer's on the encoder's pooled sentence embedding
+    pooled = encoder.embed_sequences([row[m > 0].tolist() for row, m in zip(ids, mask, strict=True)])
+    frozen = EncodingLayerConditioner(pooled, lookup, 6, binary=False)
+    instructions = jnp.array([0, 3, 7, -1, 5])
+    reference = frozen.apply_batch(params["layer"], instructions)
+    np.testing.assert_allclose(conditioner.apply_batch(conditioner.freeze(params), instructions), reference, atol=1e-5)
+    np.testing.assert_allclose(conditioner.apply(conditioner.freeze(params), jnp.int32(3)), reference[1], atol=1e-5)
+    loss_rows = jnp.array([0, 3, 5, -1])  # the loss encodes the training rows in one pass
+    np.testing.assert_allclose(
+        conditioner.apply_batch(params, loss_rows), frozen.apply_batch(params["layer"], loss_rows), atol=1e-5
+    )
+    grads = jax.grad(lambda p: jnp.sum(conditioner.apply_batch(p, loss_rows) ** 2))(params)
+    assert all(float(optax.global_norm(grads["bert"][name])) > 0 for name in trained)
+    frozen_grad = jax.grad(lambda p: jnp.sum(conditioner.apply_batch(conditioner.freeze(p), loss_rows) ** 2))(params)
+    assert float(optax.global_norm(frozen_grad["bert"])) == 0.0
+
+
+def test_one_ppo_update_moves_the_finetuned_bert():
+    encoder = load_encoder(TINY_BERT)
+    ids, mask = _token_sentences(encoder, 8, seed=1)
+    lookup = {"train": (np.arange(8, dtype=np.int32).reshape(4, 2), np.full(4, 2, np.int32))}
+    conditioner = FinetunedBertConditioner(encoder.config, encoder.params, ids, mask, lookup, 8, True, 1, np.arange(8))
+    config = PPOConfig(num_envs=8, rollout_length=16, minibatch_size=64, num_epochs=2, updates_per_chunk=1)
+    trainer = make_train(config, PointEnv(), conditioner)
+    state = trainer.init(jax.random.PRNGKey(0))
+    after, _ = jax.jit(trainer.chunk)(state)
+    moved = jax.tree.map(
+        lambda a, b: float(jnp.max(jnp.abs(a - b))), after.params["conditioner"], state.params["conditioner"]
+    )
+    assert min(jax.tree.leaves(moved["bert"])) > 0 and max(jax.tree.leaves(moved["layer"])) > 0
+    assert set(after.opt_state[1][0].mu["conditioner"]["bert"]) == {"layer_1"}  # Adam state for the trained layer only
+
+
+@pytest.mark.slow
+def test_ppo_trains_the_finetuned_bert_with_the_policy():
+    encoder = load_encoder(TINY_BERT)
+    ids, mask = _token_sentences(encoder, 8, seed=1)
+    lookup = {"train": (np.arange(8, dtype=np.int32).reshape(4, 2), np.full(4, 2, np.int32))}
+    conditioner = FinetunedBertConditioner(encoder.config, encoder.params, ids, mask, lookup, 8, False, 0, np.arange(8))
+    config = PPOConfig(
+        num_envs=16, rollout_length=32, total_env_steps=20_480, updates_per_chunk=10, num_seeds=1, eval_episodes=64
+    )
+    result = run_ppo(
+        config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False, eval_splits=("train",)
+    )
+    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    start = conditioner.init(jax.random.PRNGKey(0))["bert"]
+    moved = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a[0] - b))), result.params["conditioner"]["bert"], start)
+    assert max(jax.tree.leaves(moved)) > 1e-4  # BERT itself was optimised with the policy

@@ -195,3 +195,13 @@ def test_behaviour_cloning_keeps_its_budget_when_a_recipe_pins_it_and_the_transl
     assert _keys(pinned)[bc] == _keys(unpinned)[bc]
     assert _keys(with_talar(pinned, translator_steps=123, translator_learning_rate=0.01))[bc] == _keys(pinned)[bc]
     assert _keys(with_talar(pinned, behaviour_cloning_steps=123))[bc] != _keys(pinned)[bc]
+
+
+def test_the_finetuned_bert_layers_reach_only_the_finetuned_baselines():
+    """``talar.finetuned_bert_first_layer`` is read by the fine-tuned BERT-* encodings alone."""
+    for method in METHODS:
+        base = default_config("kitchen", method=method, physics="c")
+        top = dataclasses.replace(base, talar=dataclasses.replace(base.talar, finetuned_bert_first_layer=5))
+        for stage, key in _keys(base).items():
+            if stage != "ifp":
+                assert (key != _keys(top)[stage]) == method.startswith("finetuned-"), f"{method}: {stage}"

@@ -30,6 +30,14 @@ def test_studies_vary_exactly_their_setting(tmp_path):
     assert len({(c.talar, c.ifp, c.num_tuples) for c in aligned.values()}) == 1  # only the method differs
     joint = study.settings(study.StudyArgs("end-to-end", base))
     assert [c.method for c in joint.values()] == ["talar", "end-to-end"]
+    finetuned = study.settings(study.StudyArgs("finetuned-bert", base))
+    assert [c.method for c in finetuned.values()] == [
+        "bert-binary",
+        "bert-continuous",
+        "finetuned-bert-binary",
+        "finetuned-bert-continuous",
+    ]
+    assert len({(c.talar, c.ifp, c.num_tuples) for c in finetuned.values()}) == 1
 
 
 def test_study_outputs_state_their_budget(tmp_path):
@@ -37,11 +45,15 @@ def test_study_outputs_state_their_budget(tmp_path):
     args = study.StudyArgs("dataset-size", base, dataset_sizes=(1000, 5000))
     configs = study.settings(args)
     finals = {
-        label: {"final_success": {"train": [0.5, 1.0], "test": [0.25, 0.75]}, "ifp_env_steps_per_seed": 8192}
+        label: {
+            "final_success": {"train": [0.5, 1.0], "test": [0.25, 0.75]},
+            "ifp_env_steps_per_seed": 8192,
+            "stage_seconds": {"oracle": 10.0, "ifp": 90.0},
+        }
         for label in configs
     }
     table = study.write_outputs(args, configs, finals)
-    assert "| tuples1000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 |" in table and "Paper:" in table
+    assert "| tuples1000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 | 1.5 |" in table and "Paper:" in table
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["env"] == "kitchen" and summary["seeds"] == 2 and summary["method"] == "talar"
     assert summary["ifp_env_steps_per_seed"] == {"tuples1000": 8192, "tuples5000": 8192} and "commit" in summary

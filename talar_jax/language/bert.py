@@ -123,28 +123,41 @@ class BertLayer(nn.Module):
 
 
 class BertModel(nn.Module):
-    """BERT encoder stack; returns the last hidden state (no pooler)."""
+    """BERT encoder stack; returns the last hidden state (no pooler).
+
+    ``layers = (first, stop)`` runs encoder layers ``first .. stop - 1`` only: with ``first > 0`` the input is the
+    hidden state before layer ``first`` (the embeddings are skipped) and the output the one after layer
+    ``stop - 1``. Parameter names are the whole model's, so such a slice's parameters are a subset of its tree
+    (how the fine-tuned BERT baselines train only the top layers).
+    """
 
     config: BertConfig
+    layers: tuple[int, int] | None = None
 
     @nn.compact
     def __call__(self, input_ids: jax.Array, attention_mask: jax.Array, token_type_ids: jax.Array | None = None):
         """Encodes padded token ids.
 
         Args:
-            input_ids: (B, T) int32 token ids.
+            input_ids: (B, T) int32 token ids, or (B, T, H) hidden states when ``layers`` starts after layer 0.
             attention_mask: (B, T) 1 for real tokens, 0 for padding.
             token_type_ids: (B, T) segment ids; zeros when None.
 
         Returns:
             (B, T, H) float32 last hidden state (rows at padded positions are meaningless).
         """
-        if token_type_ids is None:
-            token_type_ids = jnp.zeros_like(input_ids)
-        hidden = BertEmbeddings(self.config, name="embeddings")(input_ids, token_type_ids)
+        first, stop = self.layers or (0, self.config.num_hidden_layers)
+        if not 0 <= first <= stop <= self.config.num_hidden_layers:
+            raise ValueError(f"layers {self.layers} must satisfy 0 <= first <= stop <= {self.config.num_hidden_layers}")
+        if first == 0:
+            if token_type_ids is None:
+                token_type_ids = jnp.zeros_like(input_ids)
+            hidden = BertEmbeddings(self.config, name="embeddings")(input_ids, token_type_ids)
+        else:
+            hidden = input_ids
         # additive key mask, as transformers: 0 for tokens, dtype minimum for padding
         attention_bias = jnp.where(attention_mask[:, None, None, :] > 0, 0.0, jnp.finfo(hidden.dtype).min)
-        for index in range(self.config.num_hidden_layers):
+        for index in range(first, stop):
             hidden = BertLayer(self.config, name=f"layer_{index}")(hidden, attention_bias)
         return hidden
 

@@ -1,0 +1,138 @@
+"""What fine-tuning BERT inside policy training costs (paper Fig. 14, Appendix E.5), against the frozen BERT-binary.
+
+``python -m benchmarks.finetuned_bert [--env kitchen] [--first-layers 5 0]``
+
+One PPO update of each conditioner on the same env and settings, side by side in one run: BERT-binary (a dense layer
+on the cached sentence embedding) and the fine-tuned BERT-binary training BERT's encoder layers from each
+``--first-layers`` index up (0: all of BERT and its embeddings, the paper's). Every minibatch step of a fine-tuned
+update runs BERT forward and backward over the env's training instructions (one batched pass), and every rollout
+encodes every instruction once. The measured update uses ``--num-envs`` envs x 64 steps and one epoch of 128-row
+minibatches; the table projects the seconds of the recipe's IFP budget (its updates x epochs x minibatches) from the
+seconds per minibatch step and per rollout. Prints a table and writes ``benchmarks/results/finetuned_bert.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import envs
+from benchmarks.machine import machine_info
+from experiments.pipeline import default_config
+from talar_jax.baselines import EncodingLayerConditioner, FinetunedBertConditioner
+from talar_jax.language import build_cache, load_encoder, load_instructions
+from talar_jax.ppo import PPOConfig, derive, make_train
+
+RESULTS = Path(__file__).parent / "results" / "finetuned_bert.json"
+
+
+def lookups(env_name: str) -> dict:
+    """split -> (goal -> cache rows, counts), as the experiments build them."""
+    out = {}
+    for split in ("train", "test"):
+        instructions = load_instructions(env_name, split)
+        out[split] = (instructions.goal_cache_rows(), instructions.goal_sentence_counts)
+    return out
+
+
+def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
+    """Seconds of one jitted PPO update (rollout + one epoch of minibatch steps) and of its rollout alone."""
+    trainer = make_train(config, env, conditioner)
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    start = time.perf_counter()
+    chunk = jax.jit(trainer.chunk).lower(state).compile()
+    compile_s = time.perf_counter() - start
+    state, _ = chunk(state)  # warm-up
+    jax.block_until_ready(state)
+    seconds = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        state, _ = chunk(state)
+        jax.block_until_ready(state)
+        seconds.append(time.perf_counter() - start)
+    freeze = jax.jit(conditioner.freeze)
+    jax.block_until_ready(freeze(state.params["conditioner"]))
+    start = time.perf_counter()
+    jax.block_until_ready(freeze(state.params["conditioner"]))
+    return {"update_s": float(np.median(seconds)), "encode_all_s": time.perf_counter() - start, "compile_s": compile_s}
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
+    parser.add_argument("--first-layers", type=int, nargs="+", default=[5, 0])
+    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args(argv)
+
+    experiment = default_config(args.env)
+    env = envs.make(args.env, physics="c", **(experiment.env_options or {}))
+    encoder = load_encoder(None)
+    cache = build_cache(args.env, encoder, progress=False)
+    splits = lookups(args.env)
+    size = experiment.talar.spec.size
+    mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
+    train_rows = np.flatnonzero(cache.is_train)
+    config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
+    measured_minibatches = derive(config).num_minibatches
+    recipe = experiment.ifp
+    recipe_sizes = derive(recipe)
+    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
+    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
+
+    frozen = EncodingLayerConditioner(cache.sentence_embeddings, splits, size, True)
+    conditioners = {"bert-binary (frozen BERT)": frozen}
+    for first in args.first_layers:
+        label = "all of BERT" if first == 0 else f"layers {first}-{encoder.config.num_hidden_layers - 1}"
+        conditioners[f"finetuned-bert-binary ({label})"] = FinetunedBertConditioner(
+            encoder.config, encoder.params, cache.token_ids, mask, splits, size, True, first, train_rows
+        )
+    rows = []
+    for label, conditioner in conditioners.items():
+        print(f"timing {label} ...", flush=True)
+        timing = time_update(env, conditioner, config, args.repeats)
+        per_minibatch = timing["update_s"] / measured_minibatches  # rollout included: an upper bound
+        rows.append(
+            {
+                "conditioner": label,
+                **timing,
+                "minibatch_step_s": per_minibatch,
+                "projected_recipe_ifp_h_per_seed": per_minibatch * recipe_minibatch_steps / 3600,
+            }
+        )
+    base = rows[0]["update_s"]
+    print(
+        f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
+        f"of 128), {len(train_rows)} training instructions; projection: {recipe.total_env_steps:,} env steps = "
+        f"{recipe_minibatch_steps:,} minibatch steps per seed\n"
+    )
+    print("| conditioner | update (s) | x frozen | encode every instruction (s) | projected IFP per seed (h) |")
+    print("|---|---:|---:|---:|---:|")
+    for row in rows:
+        row["ratio_to_frozen"] = row["update_s"] / base
+        print(
+            f"| {row['conditioner']} | {row['update_s']:.2f} | {row['ratio_to_frozen']:.1f} | "
+            f"{row['encode_all_s']:.3f} | {row['projected_recipe_ifp_h_per_seed']:.1f} |"
+        )
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "machine": machine_info(),
+        "env": args.env,
+        "num_envs": args.num_envs,
+        "training_instructions": int(len(train_rows)),
+        "recipe_ifp_env_steps": recipe.total_env_steps,
+        "recipe_minibatch_steps_per_seed": recipe_minibatch_steps,
+        "rows": rows,
+    }
+    RESULTS.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"\nwrote {RESULTS}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
