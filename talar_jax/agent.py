@@ -117,6 +117,11 @@ class Agent:
                 "a One-hot run gives every training sentence its own code and has no way to read a new sentence; "
                 "load a TALAR, Handcrafted, GLA or BERT-* run"
             )
+        if self.method not in TRANSLATOR_STAGES and self.method not in ENCODING_LAYER_METHODS:
+            raise AgentError(
+                f"method {self.method!r} has no sentence encoding an agent can use; load a TALAR, Handcrafted, GLA "
+                "or BERT-* run"
+            )
         seeds = int(self.config["seeds"])
         if not 0 <= seed < seeds:
             raise AgentError(f"--seed must lie in 0..{seeds - 1} (the run has {seeds} seeds), got {seed}")

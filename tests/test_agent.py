@@ -114,6 +114,12 @@ def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
     (onehot / "config.json").write_text(json.dumps({**config, "method": "onehot"}))
     with pytest.raises(AgentError, match="One-hot"):
         Agent(onehot)
+    finetuned = tmp_path / "finetuned" / "finetuned-bert-binary"
+    (finetuned / "ifp").mkdir(parents=True)
+    (finetuned / "ifp" / "stage.json").write_text("{}")
+    (finetuned / "config.json").write_text(json.dumps({**config, "method": "finetuned-bert-binary"}))
+    with pytest.raises(AgentError, match="'finetuned-bert-binary' has no sentence encoding an agent can use"):
+        Agent(finetuned)
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"clevr_patterns": ["move the {subject} ball"], "kitchen": {"fridge": ["open it"]}}))
     assert "placeholders" in _error(capsys, generalize.main, [str(out), "--instructions", str(bad)])
