@@ -140,6 +140,12 @@ def _clevr_showcase_goals() -> list[int]:
 # 0.753 -> 0.839 -> 0.905, agreement on our development phrasings 46.2 -> 51.6 -> 64.5 %; on a second game (other
 # seeds, no paraphrases) 0.928 test-matches-train against 0.875 for 10k @ 3e-4, decodable test 0.905 against 0.870.
 # Behaviour cloning of the pre-trained BERT-* baselines keeps its former budget (10k steps at 3e-4).
+# The translator reads every word piece's state through attention pooling (translator_tokens) and learns from
+# paraphrases that may also front the closing phrase ("Behind the blue ball, push the red ball."): measured on the
+# paper's budget (2M x 5, results/unseen-phrasings.md), against the same recipe with the one-vector readout and no
+# fronting: TL agreement on our development phrasings 64.5 -> 87.8 %, success 77.6 -> 90.9 %; test set agreement
+# 94.5 -> 97.3 %, success 96.0 -> 97.3 %. Fronting without the token readout lifted development agreement to 73.6 %
+# but cost the test set 1.4 points. The translator stage costs about 4x more (272 s vs 70 s on 2 cores).
 CLEVR_TALAR = dataclasses.replace(
     EXPERIMENT_TALAR,
     receiver_prefix_dims=32,
@@ -147,6 +153,9 @@ CLEVR_TALAR = dataclasses.replace(
     translator_steps=2_000,
     translator_learning_rate=2e-3,
     translator_paraphrases=8,
+    paraphrase_front_phrases=True,
+    paraphrase_unknown_words=True,
+    translator_tokens=True,
     behaviour_cloning_steps=10_000,
     behaviour_cloning_learning_rate=3e-4,
 )

@@ -120,8 +120,8 @@ def test_paraphrase_settings_reach_the_translator_key_only_when_paraphrases_are_
     base = dataclasses.replace(clevr, talar=dataclasses.replace(clevr.talar, translator_paraphrases=0))
     on = dataclasses.replace(base, talar=dataclasses.replace(base.talar, translator_paraphrases=8))
     reference = _keys(on)
-    changes = ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, {"paraphrase_unknown_words": True})
-    for change in (*changes, {"paraphrase_front_phrases": True}):
+    toggles = ({name: not getattr(on.talar, name)} for name in ("paraphrase_unknown_words", "paraphrase_front_phrases"))
+    for change in ({"paraphrase_probability": 0.25}, {"paraphrase_seed": 1}, *toggles):
         keys = _keys(dataclasses.replace(on, talar=dataclasses.replace(on.talar, **change)))
         assert keys["talar/translator"] != reference["talar/translator"], change
         assert keys["talar/task_language"] == reference["talar/task_language"], change
