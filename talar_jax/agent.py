@@ -134,6 +134,7 @@ class Agent:
         )
         self.encoder = load_encoder(self.config.get("encoder"))
         self.cache = build_cache(self.env_name, self.encoder, progress=False)
+        self._cache_features: np.ndarray | None = None
         if check_encoder:
             self._check_encoder()
         params = jax.tree.map(lambda x: np.asarray(x)[seed], _latest_policy_params(folder / "ifp" / "ppo"))
@@ -195,14 +196,24 @@ class Agent:
         for sentence in sentences:
             if not sentence.strip():
                 raise AgentError("a sentence is empty")
+        rows = {sentence: row for row, sentence in enumerate(self.cache.sentences)}
+        fresh = [sentence for sentence in dict.fromkeys(sentences) if sentence not in rows]
         try:
-            return sentence_features(self.encoder, sentences, self.readout)
+            computed = sentence_features(self.encoder, fresh, self.readout) if fresh else None
         except ValueError as error:
             raise AgentError(str(error)) from None
+        # sentences of the instruction file: exactly the features the run's stages read (loaded at construction)
+        cached = self.cache_features()
+        fresh_rows = {sentence: index for index, sentence in enumerate(fresh)}
+        return np.stack([cached[rows[s]] if s in rows else computed[fresh_rows[s]] for s in sentences]).astype(
+            np.float32
+        )
 
     def cache_features(self) -> np.ndarray:
         """The features ``encode`` gives, of every sentence of the env's instruction file (cache rows)."""
-        return readout_features(self.cache, self.readout, self.encoder)
+        if self._cache_features is None:
+            self._cache_features = readout_features(self.cache, self.readout, self.encoder)
+        return self._cache_features
 
     def translate(self, sentences: str | Sequence[str]) -> np.ndarray:
         """(S, code_size) the code the policy is conditioned on for each sentence (TALAR: its task language)."""

@@ -395,7 +395,8 @@ def test_sentence_readouts(tiny_cache):
 
 def test_token_readout_is_the_encoders_states_whose_mean_is_the_sentence_embedding(tiny_cache, tiny_encoder, tmp_path):
     """'tokens': (S, TOKEN_SLOTS, D) last hidden states, zero after [SEP]; mean-pooled and normalised they give the
-    pooled sentence embedding, and the cached copy (float16 on disk) reads back as the same states."""
+    pooled sentence embedding (to float16 precision), and the cached copy (float16 on disk) reads back as exactly the
+    states computed."""
     from talar_jax.language import TOKEN_SLOTS, cached_sentence_features, readout_features, sentence_features
 
     cache, sentences = tiny_cache, list(tiny_cache.sentences[:9])
@@ -406,11 +407,15 @@ def test_token_readout_is_the_encoders_states_whose_mean_is_the_sentence_embeddi
     np.testing.assert_array_equal(real, np.arange(TOKEN_SLOTS)[None] < lengths[:, None])
     pooled = states.sum(1) / lengths[:, None]
     pooled /= np.linalg.norm(pooled, axis=1, keepdims=True)
-    np.testing.assert_allclose(pooled, cache.sentence_embeddings[:9], atol=1e-5)
+    np.testing.assert_allclose(pooled, cache.sentence_embeddings[:9], atol=2e-3)  # states at float16 precision
+    assert np.array_equal(states, states.astype(np.float16).astype(np.float32))
     stored = cached_sentence_features(tiny_encoder, sentences, "tokens", cache_dir=tmp_path)
     again = cached_sentence_features(tiny_encoder, sentences, "tokens", cache_dir=tmp_path)
     assert again.dtype == np.float32 and len(list(tmp_path.iterdir())) == 1
-    np.testing.assert_allclose(again, stored, atol=2e-2 * np.abs(stored).max())
+    # computed, first written and read back from the float16 file: the same values (a resumed run reads what the
+    # first one did)
+    np.testing.assert_array_equal(stored, states)
+    np.testing.assert_array_equal(again, stored)
     with pytest.raises(ValueError, match="needs the encoder"):
         cache.sentence_features("tokens")
     with pytest.raises(ValueError, match="needs the encoder"):

@@ -187,7 +187,7 @@ def sentence_features(
 ) -> np.ndarray:
     """(S, F) features of any sentences, computed as ``EmbeddingCache.sentence_features(readout)`` computes them for
     the cached ones (the pooled embedding; with ``"sentence+prefixes"`` also the mean of the prefix embeddings), or
-    with ``"tokens"`` (S, TOKEN_SLOTS, D) per-token states (``TOKEN_READOUT``).
+    with ``"tokens"`` (S, TOKEN_SLOTS, D) per-token states (``TOKEN_READOUT``) rounded to float16 precision.
 
     Raises:
         ValueError: an unknown readout, a sentence without tokens (empty or only characters the encoder drops), or
@@ -205,8 +205,9 @@ def sentence_features(
                 f"{TOKEN_SLOTS - 2}: shorten it"
             )
     full = [encoder.with_specials(tokens) for tokens in pieces]
-    if readout == TOKEN_READOUT:
-        return encoder.token_states(full, TOKEN_SLOTS, batch_size=batch_size, progress=progress)
+    if readout == TOKEN_READOUT:  # float16 values, as the cache stores them: fresh and cached features agree
+        states = encoder.token_states(full, TOKEN_SLOTS, batch_size=batch_size, progress=progress)
+        return states.astype(np.float16).astype(np.float32)
     if readout == "sentence":
         return encoder.embed_sequences(full, batch_size=batch_size, progress=progress, description=description)
     distinct: dict[tuple[int, ...], int] = {}  # sentences sharing a beginning share its prefixes: embed each once
