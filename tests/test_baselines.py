@@ -161,7 +161,6 @@ def test_one_ppo_update_moves_the_finetuned_bert():
     assert set(after.opt_state[1][0].mu["conditioner"]["bert"]) == {"layer_1"}  # Adam state for the trained layer only
 
 
-@pytest.mark.slow
 def test_ppo_trains_the_finetuned_bert_with_the_policy():
     encoder = load_encoder(TINY_BERT)
     ids, mask = _token_sentences(encoder, 8, seed=1)
