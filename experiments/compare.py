@@ -1,8 +1,9 @@
 """TALAR against the paper's baselines: ``python -m experiments.compare --env clevr --seeds 5``.
 
 Runs every method on the same oracle, task dataset and language cache (one output folder, shared stages) and
-writes ``compare.png`` (Fig. 4 style: all methods, train and test instructions, mean ± std over seeds) and
-``compare.md`` (final success rates).
+writes ``compare.png`` (Fig. 4 style: all methods, train and test instructions, mean ± std over seeds),
+``compare.md`` (final success rates) and ``tsne.png`` (Fig. 11: every method's instruction codes, seed 0, training and
+test instructions).
 """
 
 from __future__ import annotations
@@ -118,7 +119,23 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     table = results_table(final, title=f"Final success rate, {title}")
     (base.out / f"compare{suffix}.md").write_text(table)
     print(table)
+    print(write_fig11(base, args.methods, suffix))
     return final
+
+
+def write_fig11(base: ExperimentConfig, methods: tuple[str, ...], suffix: str = "") -> str:
+    """Paper Fig. 11 (``tsne<suffix>.png``) for the compared methods' seed 0; returns a line saying what was written."""
+    from experiments.tsne import write_tsne_grid
+    from talar_jax.agent import AgentError
+
+    folders = [base.out / run_name(dataclasses.replace(base, method=method)) for method in methods]
+    try:
+        path, skipped = write_tsne_grid(folders, base.out / f"tsne{suffix}.png")
+    except AgentError as error:
+        return f"t-SNE figure: not written ({error})"
+    return f"t-SNE figure (Fig. 11): {path}" + (
+        f"; left out (no sentence encoding): {', '.join(skipped)}" if skipped else ""
+    )
 
 
 if __name__ == "__main__":

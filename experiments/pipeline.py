@@ -306,9 +306,10 @@ def write_report(
     names = get_recipe(config.env).goal_names()
     goal_curves = goal_learning_curves(stages["ifp"], names) if cache.num_goals <= 10 else None
     plot_learning_curves({label: curve}, folder / "curves.png", title=title, per_goal=goal_curves)
-    if setup.encodings is not None:
+    encodings = setup.encodings[0] if setup.encodings is not None else trained_codes(folder)
+    if encodings is not None:
         plot_tsne(
-            setup.encodings[0],
+            encodings,
             cache.goal_ids,
             folder / "tsne.png",
             title=f"{label} encodings, {config.env}",
@@ -340,6 +341,20 @@ def write_report(
     }
     write_json_atomic(folder / "summary.json", summary)
     return summary
+
+
+def trained_codes(folder: Path, seed: int = 0) -> np.ndarray | None:
+    """(S, size) the codes a finished run's ``seed`` gives every instruction of its env (language-cache rows, train
+    then test), as its agent reads them: the translated TL (TALAR), Handcrafted / GLA codes, or the trained encoding
+    layer of BERT-*. None for methods an agent cannot read a sentence with (One-hot: one code per instruction, nothing
+    to project; aligned, end-to-end and fine-tuned runs)."""
+    from talar_jax.agent import Agent, AgentError
+
+    try:
+        agent = Agent(folder, seed=seed, check_encoder=False)
+    except AgentError:
+        return None
+    return agent.translate_features(agent.cache_features())
 
 
 def write_deployment_strip(config: ExperimentConfig, folder: Path, cache: EmbeddingCache, frames: int = 5) -> str:

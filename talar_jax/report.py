@@ -85,43 +85,97 @@ def plot_learning_curves(
     return path
 
 
-def plot_tsne(
-    vectors: np.ndarray, labels: np.ndarray, path: str | Path, title: str = "", label_names: Sequence[str] | None = None
-) -> Path:
-    """t-SNE projection of instruction encodings, one marker/colour per goal (Fig. 5 style). Writes a PNG.
+def tsne_points(vectors: np.ndarray) -> np.ndarray:
+    """(N, 2) t-SNE projection of (N, F) vectors, seeded.
 
-    A small jitter separates identical points (the paper does the same), so identical TL stays visible. The
-    inputs get a 1e-3 jitter too: sklearn's t-SNE divides by the data's variance and crashes (segfault in
-    Barnes-Hut) when every vector is identical, e.g. a collapsed task language.
+    A small jitter separates identical points (the paper does the same), so identical TL stays visible. The inputs
+    get a 1e-3 jitter too: sklearn's t-SNE divides by the data's variance and crashes (segfault in Barnes-Hut) when
+    every vector is identical, e.g. a collapsed task language.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from sklearn.manifold import TSNE
 
     rng = np.random.default_rng(0)
     vectors = np.asarray(vectors, np.float64)
     vectors = vectors + rng.normal(scale=1e-3, size=vectors.shape)
-    labels = np.asarray(labels)
     perplexity = float(min(30.0, max(2.0, (len(vectors) - 1) / 3)))
     points = TSNE(n_components=2, perplexity=perplexity, init="pca", random_state=0).fit_transform(vectors)
-    points = points + rng.normal(scale=0.01 * points.std(), size=points.shape)
-    fig, ax = plt.subplots(figsize=(5.5, 5))
+    return points + rng.normal(scale=0.01 * points.std(), size=points.shape)
+
+
+def _scatter_goals(ax, points: np.ndarray, labels: np.ndarray, label_names: Sequence[str] | None, legend: bool):
+    """One marker / colour per goal, as Fig. 5; the goal of a label keeps its style across panels."""
+    import matplotlib.pyplot as plt
+
     markers = "o^sDvP*Xh<>p"
     cmap = plt.get_cmap("tab20")
-    for i, label in enumerate(np.unique(labels)):
+    for label in np.unique(labels):
         mask = labels == label
         name = label_names[int(label)] if label_names is not None else str(label)
+        i = int(label)
         ax.scatter(*points[mask].T, s=14, marker=markers[i % len(markers)], color=cmap(i % 20), label=name)
-    if len(np.unique(labels)) <= 12:
+    if legend and len(np.unique(labels)) <= 12:
         ax.legend(fontsize=7, loc="best")
-    ax.set_title(title)
     ax.set_xticks([])
     ax.set_yticks([])
+
+
+def plot_tsne(
+    vectors: np.ndarray, labels: np.ndarray, path: str | Path, title: str = "", label_names: Sequence[str] | None = None
+) -> Path:
+    """t-SNE projection of instruction encodings, one marker/colour per goal (Fig. 5 style). Writes a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = tsne_points(vectors)
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    _scatter_goals(ax, points, np.asarray(labels), label_names, legend=True)
+    ax.set_title(title)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_tsne_grid(
+    encodings: Mapping[str, np.ndarray],
+    labels: np.ndarray,
+    is_train: np.ndarray,
+    path: str | Path,
+    title: str = "",
+    label_names: Sequence[str] | None = None,
+) -> Path:
+    """Paper Fig. 11: one row per representation, columns training / test instructions. Each row is one t-SNE of
+    that representation's codes of every instruction (both sets, so the two panels share axes: a test phrasing that
+    lands in its goal's training cluster shows there). Writes a PNG.
+
+    Args:
+        encodings: representation name -> (S, size) codes of every instruction.
+        labels: (S,) goal of each instruction.
+        is_train: (S,) True for training instructions.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not encodings:
+        raise ValueError("plot_tsne_grid needs at least one representation")
+    labels, is_train = np.asarray(labels), np.asarray(is_train, bool)
+    fig, axes = plt.subplots(len(encodings), 2, figsize=(8, 3.6 * len(encodings)), squeeze=False)
+    for row, (name, vectors) in enumerate(encodings.items()):
+        points = tsne_points(vectors)
+        for col, (split, mask) in enumerate((("training", is_train), ("test", ~is_train))):
+            ax = axes[row, col]
+            _scatter_goals(ax, points[mask], labels[mask], label_names, legend=row == 0 and col == 0)
+            ax.set_title(f"{name}, {split} instructions", fontsize=9)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 

@@ -7,7 +7,8 @@ import jax
 import numpy as np
 import pytest
 
-from experiments import generalize, instruct
+from experiments import generalize, instruct, tsne
+from experiments.pipeline import trained_codes
 from talar_jax.agent import Agent, AgentError, load
 from talar_jax.language import load_user_instructions
 
@@ -126,3 +127,37 @@ def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
     only_kitchen = tmp_path / "kitchen.json"
     only_kitchen.write_text(json.dumps({"kitchen": {"kettle": ["move the kettle"]}}))
     assert "no 'clevr_patterns'" in _error(capsys, generalize.main, [str(out), "--instructions", str(only_kitchen)])
+
+
+def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path, capsys, monkeypatch):
+    out, _ = clevr_run
+    tables = np.load(out / "talar" / "translator" / "tables.npy")
+    np.testing.assert_array_equal(trained_codes(out / "talar", seed=1), tables[1])
+    config = json.loads((out / "talar" / "config.json").read_text())
+    onehot = tmp_path / "runs" / "onehot"
+    (onehot / "ifp").mkdir(parents=True)
+    (onehot / "ifp" / "stage.json").write_text("{}")
+    (onehot / "config.json").write_text(json.dumps({**config, "method": "onehot"}))
+    assert trained_codes(onehot) is None
+    drawn = {}
+
+    def fake_grid(encodings, labels, is_train, path, title="", label_names=None):
+        drawn.update(encodings=encodings, labels=labels, is_train=is_train, path=path, names=label_names)
+        return path
+
+    monkeypatch.setattr(tsne, "plot_tsne_grid", fake_grid)
+    figure = tmp_path / "fig11.png"
+    tsne.main([str(out), str(onehot), "--out", str(figure), "--seed", "1"])
+    assert list(drawn["encodings"]) == ["TALAR"] and drawn["path"] == figure
+    np.testing.assert_array_equal(drawn["encodings"]["TALAR"], tables[1])
+    assert drawn["labels"].shape == (1440,) and drawn["is_train"].sum() == 720 and len(drawn["names"]) == 80
+    assert "left out, no sentence encoding: One-hot" in capsys.readouterr().out
+    # Bad input: one line each.
+    assert "does not exist" in _error(capsys, tsne.main, [str(tmp_path / "nowhere")])
+    assert "--seed must lie in 0..1" in _error(capsys, tsne.main, [str(out), "--seed", "2"])
+    assert "none of the runs has instruction codes" in _error(capsys, tsne.main, [str(onehot)])
+    kitchen = tmp_path / "runs" / "kitchen"
+    (kitchen / "ifp").mkdir(parents=True)
+    (kitchen / "ifp" / "stage.json").write_text("{}")
+    (kitchen / "config.json").write_text(json.dumps({**config, "env": "kitchen"}))
+    assert "different envs" in _error(capsys, tsne.main, [str(out), str(kitchen)])

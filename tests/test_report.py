@@ -1,8 +1,9 @@
 """Run reports: learning-curve and t-SNE figures are written, the results table shows mean ± std."""
 
 import numpy as np
+import pytest
 
-from talar_jax.report import LearningCurve, plot_learning_curves, plot_tsne, results_table
+from talar_jax.report import LearningCurve, plot_learning_curves, plot_tsne, plot_tsne_grid, results_table, tsne_points
 
 
 def test_learning_curve_and_tsne_figures(tmp_path):
@@ -16,6 +17,26 @@ def test_learning_curve_and_tsne_figures(tmp_path):
     # A collapsed encoding (every vector identical) must still plot (it crashed sklearn's t-SNE before).
     path = plot_tsne(np.ones((40, 14)), np.repeat(np.arange(4), 10), tmp_path / "collapsed.png")
     assert path.stat().st_size > 1000
+
+
+def test_tsne_grid_rows_share_one_projection_per_representation(tmp_path):
+    labels = np.tile(np.repeat(np.arange(4), 5), 2)
+    is_train = np.arange(40) < 20
+    clustered = np.repeat(np.eye(4), 5, axis=0)[np.tile(np.arange(20), 2)]
+    scattered = np.random.default_rng(0).normal(size=(40, 6))
+    path = plot_tsne_grid(
+        {"TL": clustered, "BERT-binary": scattered}, labels, is_train, tmp_path / "fig11.png", label_names=list("abcd")
+    )
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Seeded: the same vectors project to the same points; goal clusters stay apart in the projection.
+    points = tsne_points(clustered)
+    np.testing.assert_allclose(points, tsne_points(clustered))
+    centres = np.stack([points[labels == g].mean(0) for g in range(4)])
+    spread = max(np.linalg.norm(points[labels == g] - centres[g], axis=1).max() for g in range(4))
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1)[~np.eye(4, dtype=bool)]
+    assert gaps.min() > 3 * spread
+    with pytest.raises(ValueError, match="at least one representation"):
+        plot_tsne_grid({}, labels, is_train, tmp_path / "none.png")
 
 
 def test_results_table_mean_and_std():

@@ -1,0 +1,91 @@
+"""Paper Fig. 11: t-SNE of every representation on training and test instructions, from finished runs.
+
+``python -m experiments.tsne RUN_DIR [RUN_DIR ...] --out tsne.png [--seed 0]``
+
+Each RUN_DIR is a finished run of one env (a run root such as ``runs/clevr`` or a method folder such as
+``runs/compare-clevr/bert-binary``). One row per run: the codes its seed gives every instruction of the env (the
+translated TL for TALAR, the Handcrafted / GLA codes, the trained encoding layer of BERT-*), one t-SNE over both sets,
+shown as a training and a test panel. ``experiments.compare`` writes the same figure for its methods.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import tyro
+
+from experiments.instruct import agent_command
+from experiments.methods import METHOD_LABELS
+from experiments.pipeline import trained_codes
+from experiments.recipes import get_recipe
+from talar_jax.agent import AgentError, find_method_folder
+from talar_jax.language import build_cache, load_encoder
+from talar_jax.report import plot_tsne_grid
+
+
+@dataclasses.dataclass(frozen=True)
+class TsneArgs:
+    run_dirs: tyro.conf.Positional[tuple[Path, ...]]
+    """Finished run folders of one env (run roots or method folders)."""
+    out: Path = Path("tsne.png")
+    """The figure to write."""
+    seed: int = 0
+    """Which seed's codes to project."""
+
+
+def write_tsne_grid(folders: Sequence[Path], path: Path, seed: int = 0) -> tuple[Path, list[str]]:
+    """Fig. 11 for the runs in ``folders`` (method folders of one env) at ``path``; returns the path and the labels of
+    runs left out (methods without a sentence encoding, e.g. One-hot). Raises ``AgentError`` for a folder that is
+    not a finished run, runs of different envs, or when no run has codes."""
+    configs = {folder: json.loads((folder / "config.json").read_text()) for folder in folders}
+    env_names = {config["env"] for config in configs.values()}
+    if len(env_names) != 1:
+        raise AgentError(f"the runs are of different envs ({', '.join(sorted(env_names))}); give runs of one env")
+    env = env_names.pop()
+    encodings, skipped = {}, []
+    for folder, config in configs.items():
+        if not 0 <= seed < int(config["seeds"]):
+            raise AgentError(f"--seed must lie in 0..{int(config['seeds']) - 1} for {folder}, got {seed}")
+        label = METHOD_LABELS.get(config["method"], config["method"])
+        codes = trained_codes(folder, seed)
+        if codes is None:
+            skipped.append(label)
+        else:
+            encodings[label if label not in encodings else f"{label} ({folder})"] = codes
+    if not encodings:
+        raise AgentError(f"none of the runs has instruction codes to project (left out: {', '.join(skipped)})")
+    encoder = next(iter(configs.values())).get("encoder")
+    cache = build_cache(env, load_encoder(encoder), progress=False)
+    plot_tsne_grid(
+        encodings,
+        cache.goal_ids,
+        cache.is_train,
+        path,
+        title=f"{env}: instruction codes, seed {seed}",
+        label_names=get_recipe(env).goal_names(),
+    )
+    return path, skipped
+
+
+def tsne(args: TsneArgs) -> Path:
+    if not args.run_dirs:
+        raise AgentError("give at least one run folder")
+    folders = [find_method_folder(run_dir) for run_dir in args.run_dirs]
+    for folder in folders:
+        if not (folder / "ifp" / "stage.json").is_file():
+            raise AgentError(f"the run in {folder} is not finished (its ifp stage has no stage.json)")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    path, skipped = write_tsne_grid(folders, args.out, args.seed)
+    print(f"wrote {path}" + (f" (left out, no sentence encoding: {', '.join(skipped)})" if skipped else ""))
+    return path
+
+
+def main(argv: list[str] | None = None) -> Path:
+    return agent_command(TsneArgs, tsne, argv, __doc__)
+
+
+if __name__ == "__main__":
+    main()
