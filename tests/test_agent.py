@@ -148,8 +148,13 @@ def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path,
     monkeypatch.setattr(tsne, "plot_tsne_grid", fake_grid)
     figure = tmp_path / "fig11.png"
     tsne.main([str(out), str(onehot), "--out", str(figure), "--seed", "1"])
-    assert list(drawn["encodings"]) == ["TALAR"] and drawn["path"] == figure
-    np.testing.assert_array_equal(drawn["encodings"]["TALAR"], tables[1])
+    (name,) = drawn["encodings"]
+    assert name.startswith("TALAR (NN goal ") and drawn["path"] == figure
+    np.testing.assert_array_equal(drawn["encodings"][name], tables[1])
+    record = json.loads(figure.with_suffix(".json").read_text())
+    is_train = np.asarray(drawn["is_train"])
+    expected = tsne.nearest_training_goal_accuracy(tables[1], np.asarray(drawn["labels"]), is_train)
+    assert record["nearest_training_goal"] == {"TALAR": expected} and record["seed"] == 1
     assert drawn["labels"].shape == (1440,) and drawn["is_train"].sum() == 720 and len(drawn["names"]) == 80
     assert "left out, no sentence encoding: One-hot" in capsys.readouterr().out
     # Bad input: one line each.
@@ -161,3 +166,11 @@ def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path,
     (kitchen / "ifp" / "stage.json").write_text("{}")
     (kitchen / "config.json").write_text(json.dumps({**config, "env": "kitchen"}))
     assert "different envs" in _error(capsys, tsne.main, [str(out), str(kitchen)])
+
+
+def test_nearest_training_goal_accuracy_counts_ties_fractionally():
+    goals = np.array([0, 1, 0, 1, 2])
+    is_train = np.array([True, True, False, False, False])
+    codes = np.array([[0.0, 0], [1, 1], [0.1, 0], [0.5, 0.5], [5, 5]])
+    # test rows: nearest to goal 0 (right), a tie between goals 0 and 1 (half right), nearest to goal 1 (wrong: goal 2)
+    assert tsne.nearest_training_goal_accuracy(codes, goals, is_train) == pytest.approx((1 + 0.5 + 0) / 3)
