@@ -587,7 +587,8 @@ def test_paraphrases_never_rebuild_a_test_or_development_sentence(env):
         assert [v for vs in free for v in vs if key(v) in held_keys]
 
 
-def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(monkeypatch, tmp_path):
+@pytest.mark.parametrize("tokens", [False, True])
+def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(monkeypatch, tmp_path, tokens):
     import dataclasses
     import types
 
@@ -605,7 +606,8 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
         instruction_ids=train_rows.astype(np.int32),
     )
     config = resolve(default_config("kitchen", encoder=TINY_BERT, seeds=1, progress=False))
-    config = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=3))
+    talar = dataclasses.replace(config.talar, translator_paraphrases=3, translator_tokens=tokens)
+    config = dataclasses.replace(config, talar=talar)
     data = make_task_language_data(dataset, cache, config.sentence_readout)
     encoded, real = [], methods.cached_sentence_features
 
@@ -619,7 +621,10 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     num_sentences = len(cache.sentences)
     assert len(encoded) == 3 * len(train_rows)
     assert augmented.sentence_embeddings.shape[0] == num_sentences + 3 * len(train_rows)
-    np.testing.assert_array_equal(augmented.sentence_embeddings[:num_sentences], data.sentence_embeddings)
+    # the cached sentences keep the translator's readout of them (the pooled vector, or token states with ``tokens``)
+    np.testing.assert_array_equal(
+        augmented.sentence_embeddings[:num_sentences], ctx.translator_data().sentence_embeddings
+    )
     variants = np.asarray(augmented.sentence_variants)
     for i, row in enumerate(train_rows):  # each dataset sentence -> its own three paraphrases, in order
         np.testing.assert_array_equal(variants[row], num_sentences + 3 * i + np.arange(3))
@@ -629,7 +634,11 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     assert not {s.lower() for s in encoded} & held
     # without paraphrases the translator reads the data unchanged (the paper's translator)
     plain = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=0))
-    assert methods.paraphrased_data(dataclasses.replace(ctx, config=plain)) is data
+    unchanged = methods.paraphrased_data(dataclasses.replace(ctx, config=plain))
+    if tokens:
+        np.testing.assert_array_equal(unchanged.sentence_embeddings, ctx.translator_data().sentence_embeddings)
+    else:
+        assert unchanged is data
 
 
 def test_unknown_word_paraphrases_replace_only_function_words():

@@ -28,9 +28,8 @@ def test_tsne_grid_rows_share_one_projection_per_representation(tmp_path):
         {"TL": clustered, "BERT-binary": scattered}, labels, is_train, tmp_path / "fig11.png", label_names=list("abcd")
     )
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    # Seeded: the same vectors project to the same points; goal clusters stay apart in the projection.
+    # Goal clusters stay apart in the projection.
     points = tsne_points(clustered)
-    np.testing.assert_allclose(points, tsne_points(clustered))
     centres = np.stack([points[labels == g].mean(0) for g in range(4)])
     spread = max(np.linalg.norm(points[labels == g] - centres[g], axis=1).max() for g in range(4))
     gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1)[~np.eye(4, dtype=bool)]
