@@ -78,9 +78,16 @@ def plot_learning_curves(
         ax.set_ylim(-2, 102)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    return _save(fig, path, dpi=120)
+
+
+def _save(fig, path: str | Path, dpi: int) -> Path:
+    """Lays out, writes and closes a figure; returns its path."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 
@@ -136,11 +143,7 @@ def plot_tsne(
     fig, ax = plt.subplots(figsize=(5.5, 5))
     _scatter_goals(ax, points, np.asarray(labels), label_names, legend=True)
     ax.set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=120)
 
 
 def plot_tsne_grid(
@@ -177,11 +180,7 @@ def plot_tsne_grid(
             ax.set_title(f"{name}, {split} instructions", fontsize=9)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=110)
 
 
 def results_table(final: Mapping[str, Mapping[str, np.ndarray]], title: str = "") -> str:
