@@ -265,7 +265,7 @@ def _translator_stage(ctx: MethodContext, name: str, key: str, spec: TaskLanguag
             **timings,
         }
 
-    return run_stage(config.out, name, key, body)
+    return run_stage(config.out, name, key, body, reuse_from=config.reuse_stages)
 
 
 def paraphrased_data(ctx: MethodContext, data: TaskLanguageData | None = None) -> TaskLanguageData:
@@ -324,7 +324,9 @@ def setup_talar(ctx: MethodContext) -> MethodSetup:
             **timings,
         }
 
-    rg = run_stage(config.out, "talar/task_language", keys["talar/task_language"], rg_body)
+    rg = run_stage(
+        config.out, "talar/task_language", keys["talar/task_language"], rg_body, reuse_from=config.reuse_stages
+    )
 
     def targets(stage_dir: Path) -> jax.Array:
         generator_params = load_tree(rg.path / "params.msgpack")["generator"]
@@ -363,7 +365,7 @@ def setup_end_to_end(ctx: MethodContext) -> MethodSetup:
             **timings,
         }
 
-    return _table_setup(ctx, run_stage(config.out, stage_name, key, body))
+    return _table_setup(ctx, run_stage(config.out, stage_name, key, body, reuse_from=config.reuse_stages))
 
 
 def setup_handcrafted(ctx: MethodContext) -> MethodSetup:
@@ -397,7 +399,7 @@ def setup_gla(ctx: MethodContext) -> MethodSetup:
         save_tree(stage_dir / "params.msgpack", params)
         return {"reconstruction_mse_end": losses[:, -100:].mean(1).tolist()}
 
-    gla = run_stage(config.out, "gla/autoencoder", keys["gla/autoencoder"], gla_body)
+    gla = run_stage(config.out, "gla/autoencoder", keys["gla/autoencoder"], gla_body, reuse_from=config.reuse_stages)
 
     def targets(stage_dir: Path) -> jax.Array:
         codes = jax.vmap(make_gla_codes(size, obs), in_axes=(0, None, None))
@@ -444,7 +446,7 @@ def _encoding_setup(ctx: MethodContext, binary: bool, pretrained: bool, aligned:
         save_tree(stage_dir / "params.msgpack", params)
         return {"bc_nll_end": losses[:, -100:].mean(1).tolist()}
 
-    stage = run_stage(config.out, stage_name, key, bc_body)
+    stage = run_stage(config.out, stage_name, key, bc_body, reuse_from=config.reuse_stages)
     params = load_tree(stage.path / "params.msgpack")
     return MethodSetup(conditioner, params, stage.key, None, ctx.named(stage))
 

@@ -67,6 +67,10 @@ class ExperimentConfig:
     out: Path | None = None
     """Output folder (default runs/<env>; a run found there is resumed, finished stages with unchanged inputs are
     reused)."""
+    reuse_stages: tuple[Path, ...] = ()
+    """Other run folders to take finished stages from: a stage finished there with the same key (the hash of
+    every input it reads) is copied into ``out`` instead of run, e.g. a study's default setting from
+    ``runs/kitchen``."""
     physics: str | None = None
     """Physics backend 'c' or 'mjx' (default: the faster one for the current device: C on CPU, MJX on GPU)."""
     encoder: str | None = None
@@ -103,7 +107,7 @@ class ExperimentConfig:
     (needs ``pip install -e .[tensorboard]``); ``tensorboard --logdir runs/`` follows a run while it trains."""
 
 
-KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "progress", "deployment_strip", "tensorboard")
+KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "reuse_stages", "progress", "deployment_strip", "tensorboard")
 """ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
 
 
@@ -151,6 +155,9 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
     for name in ("oracle_env_steps", "num_tuples"):
         if getattr(config, name) is not None and getattr(config, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
+    for folder in config.reuse_stages:
+        if not Path(folder).is_dir():
+            raise ValueError(f"--reuse-stages {folder}: no such run folder")
     if config.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ValueError("--tensorboard needs tensorboardX: pip install -e .[tensorboard]")
     physics = config.physics or envs.default_backend()
@@ -166,6 +173,8 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
     )
     if config.quick:
         config = quick_config(config)
+    elif config.num_tuples == recipe.num_tuples:  # the recipe's size in its canonical form: the same stage keys
+        config = dataclasses.replace(config, num_tuples=None)
     return dataclasses.replace(config, ifp=dataclasses.replace(config.ifp, num_seeds=config.seeds, seed=config.seed))
 
 
@@ -199,16 +208,21 @@ def _oracle_args(config: ExperimentConfig, out: Path) -> OracleArgs:
     )
 
 
+def stage_oracle_key(config: ExperimentConfig) -> str:
+    """The oracle stage's key: the oracle's settings (not its folder or progress output) and the env's model."""
+    args = dataclasses.replace(_oracle_args(config, Path()), progress=True)
+    return stable_hash("oracle", args, envs.model_fingerprint(config.env))
+
+
 def stage_oracle(config: ExperimentConfig) -> StageResult:
     """Goal-conditioned oracle and the task dataset (``experiments.oracle``), shared by every method."""
-    args = dataclasses.replace(_oracle_args(config, Path()), progress=True)
-    key = stable_hash("oracle", args, envs.model_fingerprint(config.env))
+    key = stage_oracle_key(config)
 
     def body(stage_dir: Path) -> dict[str, Any]:
         success = run_oracle(_oracle_args(config, stage_dir))
         return {"oracle_train_success": success, "num_tuples": len(TaskDataset.load(stage_dir / "dataset"))}
 
-    return run_stage(config.out, "oracle", key, body)
+    return run_stage(config.out, "oracle", key, body, reuse_from=config.reuse_stages)
 
 
 def run_name(config: ExperimentConfig) -> str:
@@ -255,7 +269,7 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
             **{f"{split}_success_per_seed": ev["success_per_seed"] for split, ev in result.final_eval.items()},
         }
 
-    return run_stage(config.out, f"{run_name(config)}/ifp", key, body)
+    return run_stage(config.out, f"{run_name(config)}/ifp", key, body, reuse_from=config.reuse_stages)
 
 
 def _eval_rows(ifp: StageResult) -> list[dict[str, Any]]:

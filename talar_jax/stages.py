@@ -12,7 +12,7 @@ import hashlib
 import json
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,20 @@ def stable_hash(*parts: Any) -> str:
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
+def finished_record(stage_dir: Path) -> dict[str, Any] | None:
+    """The ``stage.json`` record of a finished stage folder (key, summary, seconds), or None."""
+    marker = stage_dir / "stage.json"
+    return json.loads(marker.read_text()) if marker.is_file() else None
+
+
+def _remove(path: Path) -> None:
+    """Removes a stage folder, or the link to another run's folder that stands in for it."""
+    if path.is_symlink():
+        path.unlink()
+    elif path.exists():
+        shutil.rmtree(path)
+
+
 @dataclasses.dataclass(frozen=True)
 class StageResult:
     """What a finished stage recorded: its folder, input key, summary and wall-clock seconds."""
@@ -57,21 +71,36 @@ def run_stage(
     key: str,
     body: Callable[[Path], dict[str, Any]],
     log: Callable[[str], None] = print,
+    reuse_from: Sequence[str | Path] = (),
 ) -> StageResult:
     """Runs ``body(stage_dir) -> summary`` unless ``stage_dir/stage.json`` already holds ``key``.
 
     A stage that changes key is cleared first, except for ``checkpoints/`` of the *same* key, which the body
-    may resume from (long stages checkpoint into ``stage_dir/checkpoints``).
+    may resume from (long stages checkpoint into ``stage_dir/checkpoints``). ``reuse_from``: other run folders;
+    where one holds this stage finished with the same key (``<folder>/<name>/stage.json``), it is copied here
+    instead of run (the key hashes every input, so the outputs would be the same).
     """
     stage_dir = Path(run_dir) / name
     marker = stage_dir / "stage.json"
-    if marker.exists():
-        record = json.loads(marker.read_text())
-        if record.get("key") == key:
-            log(f"[{name}] up to date (key {key}), reusing {stage_dir}")
-            return StageResult(stage_dir, key, record.get("summary", {}), record.get("seconds", 0.0), True)
+    record = finished_record(stage_dir)
+    if record is not None and record.get("key") == key:
+        log(f"[{name}] up to date (key {key}), reusing {stage_dir}")
+        return StageResult(stage_dir, key, record.get("summary", {}), record.get("seconds", 0.0), True)
+    for source in reuse_from:
+        found = Path(source) / name
+        found_record = finished_record(found)
+        if found_record is None or found_record.get("key") != key or found.resolve() == stage_dir.resolve():
+            continue
+        partial = stage_dir.with_name(stage_dir.name + ".copying")  # renamed when whole: no half copy looks finished
+        _remove(partial)
+        shutil.copytree(found, partial)
+        _remove(stage_dir)
+        partial.rename(stage_dir)
+        log(f"[{name}] finished with the same key (key {key}) in {found}: copied, not run")
+        return StageResult(stage_dir, key, found_record.get("summary", {}), found_record.get("seconds", 0.0), True)
+    if record is not None:
         log(f"[{name}] inputs changed ({record.get('key')} -> {key}): running again")
-        shutil.rmtree(stage_dir)
+        _remove(stage_dir)
     pending = stage_dir / "pending.json"
     if pending.exists() and json.loads(pending.read_text()).get("key") != key:
         shutil.rmtree(stage_dir)

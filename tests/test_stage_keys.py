@@ -2,6 +2,7 @@
 it is reused (the keys are computed without running anything)."""
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 
@@ -22,6 +23,8 @@ def _changed(value, name):
         return value * 2 if value else 3
     if isinstance(value, float):
         return value * 0.5 if value else 0.25
+    if name == "reuse_stages":
+        return (Path("."),)
     if isinstance(value, tuple):
         return tuple(v * 2 for v in value)
     if isinstance(value, TaskLanguageSpec):
@@ -160,19 +163,13 @@ def test_bert_encoding_size_reaches_the_ifp_key():
 
 def test_editing_an_env_model_reruns_the_oracle_and_the_policy(monkeypatch, tmp_path):
     import envs
-    from experiments.pipeline import stage_oracle
+    from experiments.pipeline import stage_oracle_key
 
     config = resolve(default_config("kitchen", physics="c", out=tmp_path))
-    seen = {}
-    monkeypatch.setattr("experiments.pipeline.run_stage", lambda run_dir, name, key, body: seen.setdefault(name, key))
-    stage_oracle(config)
-    reference_ifp = stage_keys(config, UPSTREAM, CACHE)["ifp"]
+    reference = (stage_oracle_key(config), stage_keys(config, UPSTREAM, CACHE)["ifp"])
     monkeypatch.setattr(envs, "model_fingerprint", lambda name: "an-edited-model")
-    seen_before = dict(seen)
-    seen.clear()
-    stage_oracle(config)
-    assert seen["oracle"] != seen_before["oracle"]
-    assert stage_keys(config, UPSTREAM, CACHE)["ifp"] != reference_ifp
+    assert stage_oracle_key(config) != reference[0]
+    assert stage_keys(config, UPSTREAM, CACHE)["ifp"] != reference[1]
 
 
 def test_behaviour_cloning_keeps_its_budget_when_a_recipe_pins_it_and_the_translator_changes():
@@ -205,3 +202,21 @@ def test_the_finetuned_bert_layers_reach_only_the_finetuned_baselines():
         for stage, key in _keys(base).items():
             if stage != "ifp":
                 assert (key != _keys(top)[stage]) == method.startswith("finetuned-"), f"{method}: {stage}"
+
+
+def test_a_study_setting_equal_to_the_recipe_has_the_recipe_runs_keys():
+    """The ablation's Table 2 setting and the dataset-size study's recipe size are the env command's run: same keys
+    (oracle included), so ``--reuse-stages runs/kitchen`` copies them instead of training them again."""
+    from experiments.pipeline import stage_oracle_key
+    from experiments.study import StudyArgs, settings
+
+    base = dataclasses.replace(default_config("kitchen", physics="c"), out=None)
+    reference = resolve(base)
+    expected = (stage_oracle_key(reference), _keys(base))
+    ablation = settings(StudyArgs("ablation", experiment=base))
+    sizes = settings(StudyArgs("dataset-size", experiment=base))
+    for setting in (ablation["npn4-na2"], sizes["tuples50000"]):
+        assert (stage_oracle_key(setting), stage_keys(setting, UPSTREAM, CACHE)) == expected
+    for setting in (ablation["npn6-na4"], sizes["tuples10000"]):
+        assert stage_keys(setting, UPSTREAM, CACHE)["ifp"] != expected[1]["ifp"]
+    assert stage_oracle_key(sizes["tuples10000"]) != expected[0]

@@ -68,6 +68,7 @@ def test_study_outputs_state_their_budget(tmp_path):
         (["ablation", "--predicates", "0"], "positive counts"),
         (["dataset-size", "--dataset-sizes", "0"], "positive sizes"),
         (["ablation", "--ifp-env-steps", "0"], "--ifp-env-steps must be >= 1"),
+        (["ablation", "--reuse-stages", "/no/such/run"], "--reuse-stages /no/such/run: no such run folder"),
     ],
 )
 def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
