@@ -1,0 +1,73 @@
+"""Does a sentence encoder put each kitchen development phrasing next to its own sub-task's training sentences?
+
+    python scripts/encoder_neighbours.py ENCODER_FOLDER [ENCODER_FOLDER ...]
+
+For every sentence-transformers folder given, embeds the kitchen's training instructions and our development
+phrasings (``talar_jax/language/data/development.json``; never trained on) and classifies each development phrasing
+by its nearest training sentence and by its nearest sub-task centroid (cosine). Prints both accuracies and every
+miss. This asks whether an encoder *could* tell the burners apart by position words the training sentences never use
+("front", "back", "lower"): a translator trained on training sentences only cannot know more than its encoder.
+
+Runs outside the project's environment: it needs ``sentence-transformers`` (and torch), which talar-jax does not
+depend on; results/unseen-phrasings.md gives the commands used for all-MiniLM-L6-v2 and all-mpnet-base-v2.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[1] / "talar_jax" / "language" / "data"
+
+
+def kitchen_sentences() -> tuple[list[str], list[tuple[str, str]], list[tuple[str, str]]]:
+    """Sub-task names, (training sentence, sub-task) and (development sentence, sub-task) pairs."""
+    subtasks = json.loads((DATA / "instructions.json").read_text())["kitchen"]["subtasks"]
+    development = json.loads((DATA / "development.json").read_text())["kitchen"]
+    names = list(subtasks)
+    train = [(sentence, name) for name in names for sentence in subtasks[name]["train"]]
+    held_out = [(sentence, name) for name in names for sentence in development[name]]
+    return names, train, held_out
+
+
+def classify(train: np.ndarray, train_goals: np.ndarray, held_out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-training-sentence and nearest-centroid goal of each held-out embedding (rows L2-normalised)."""
+    nearest = train_goals[(held_out @ train.T).argmax(1)]
+    centroids = np.stack([train[train_goals == goal].mean(0) for goal in range(train_goals.max() + 1)])
+    centroids /= np.linalg.norm(centroids, axis=1, keepdims=True)
+    return nearest, (held_out @ centroids.T).argmax(1)
+
+
+def main(argv: list[str]) -> int:
+    if not argv:
+        print("usage: python scripts/encoder_neighbours.py ENCODER_FOLDER [ENCODER_FOLDER ...]", file=sys.stderr)
+        return 2
+    try:
+        from sentence_transformers import SentenceTransformer
+    except ImportError:
+        print("error: this probe needs sentence-transformers (pip install sentence-transformers)", file=sys.stderr)
+        return 2
+    missing = [folder for folder in argv if not Path(folder).is_dir()]
+    if missing:
+        print(f"error: no such encoder folder: {missing[0]}", file=sys.stderr)
+        return 2
+    names, train, held_out = kitchen_sentences()
+    train_goals = np.array([names.index(name) for _, name in train])
+    goals = np.array([names.index(name) for _, name in held_out])
+    for folder in argv:
+        model = SentenceTransformer(folder, device="cpu")
+        embed = lambda pairs: model.encode([s for s, _ in pairs], normalize_embeddings=True)  # noqa: E731
+        for label, guess in zip(
+            ("nearest sentence", "nearest centroid"), classify(embed(train), train_goals, embed(held_out))
+        ):
+            print(f"{folder} {label}: {int((guess == goals).sum())}/{len(goals)} development phrasings")
+            for index in np.flatnonzero(guess != goals):
+                print(f"  miss: {held_out[index][0]!r} ({held_out[index][1]}) -> {names[guess[index]]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
