@@ -77,6 +77,23 @@ def test_compare_quick_runs_baselines_on_shared_stages(clevr_run, methods, names
     assert (out / "compare.png").stat().st_size > 0
     table = (out / "compare.md").read_text()
     assert all(f"| {name} |" in table for name in names)
+    assert "TALAR over the best baseline (paper: +13.4 points" in table
+
+
+def test_compare_shows_every_method_finished_with_its_settings(clevr_run, monkeypatch):
+    """Methods run one call at a time still make one table; a policy trained with other settings is left out."""
+    from experiments.compare import finished_methods
+
+    out, _ = clevr_run
+    experiment = default_config("clevr", seeds=2, out=out, quick=True, encoder=TINY_BERT, progress=False)
+    final = compare(CompareArgs(experiment=experiment, methods=("bert-binary",)))  # TALAR: the fixture's run
+    assert {"TALAR", "BERT-binary"} <= set(final)
+    table = (out / "compare.md").read_text()
+    assert "| TALAR |" in table and "- test instructions: " in table and "best baseline BERT-binary" in table
+    base = base_config(CompareArgs(experiment=experiment, methods=("bert-binary",)))
+    assert "talar" in finished_methods(base, ("bert-binary",))
+    fewer_steps = base_config(CompareArgs(experiment=experiment, methods=("bert-binary",), ifp_env_steps=512))
+    assert "talar" not in finished_methods(fewer_steps, ("bert-binary",))
 
 
 def test_kitchen_quick_end_to_end(kitchen_run):
