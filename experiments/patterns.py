@@ -2,7 +2,8 @@
 
 ``python -m experiments.patterns --seeds 5`` trains TALAR, One-hot, BERT-binary and BERT-continuous with the
 first k training patterns (the IFP sees only those; the task language and translator are shared) and writes
-``table3.md`` beside the per-run folders.
+``table3.md`` beside the per-run folders. Nine patterns are the full training set, the same runs as
+``experiments.compare`` (``--reuse-stages runs/compare-clevr`` copies them).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 import tyro
 
 from experiments.compare import CompareArgs, compare, main_with
+from experiments.methods import METHOD_LABELS
 from experiments.pipeline import ExperimentConfig, default_config
 
 PAPER = {
@@ -51,8 +53,8 @@ def patterns(args: PatternsArgs) -> str:
     rows: dict[str, list[str]] = {}
     for k in args.patterns:
         final = compare(args.comparison(k))
-        for label, per_split in final.items():
-            rates = np.asarray(per_split["train"]) * 100
+        for label in [METHOD_LABELS[method] for method in args.methods]:  # compare.md may show more of its folder
+            rates = np.asarray(final[label]["train"]) * 100
             rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")
     header = "| method | " + " | ".join(f"{k} patterns" for k in args.patterns) + " | paper (1 / 5 / 9) |"
     lines = ["### Success on training instructions (%), CLEVR", "", header, "|---|" + "---|" * (len(args.patterns) + 1)]

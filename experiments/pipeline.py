@@ -107,6 +107,9 @@ class ExperimentConfig:
     (needs ``pip install -e .[tensorboard]``); ``tensorboard --logdir runs/`` follows a run while it trains."""
 
 
+CLEVR_TRAIN_PATTERNS = 9
+"""CLEVR's training sentence patterns (paper Table 3's largest column: ``--num-patterns 9`` is the full set)."""
+
 KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "reuse_stages", "progress", "deployment_strip", "tensorboard")
 """ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
 
@@ -150,8 +153,10 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
         raise ValueError(f"--seeds must be >= 1, got {config.seeds}")
     if config.sentence_readout not in SENTENCE_READOUTS:
         raise ValueError(f"unknown sentence readout {config.sentence_readout!r}; valid: {', '.join(SENTENCE_READOUTS)}")
-    if config.num_patterns is not None and (config.env != "clevr" or not 1 <= config.num_patterns <= 9):
-        raise ValueError("--num-patterns is for clevr only and must lie in 1..9")
+    if config.num_patterns is not None and (
+        config.env != "clevr" or not 1 <= config.num_patterns <= CLEVR_TRAIN_PATTERNS
+    ):
+        raise ValueError(f"--num-patterns is for clevr only and must lie in 1..{CLEVR_TRAIN_PATTERNS}")
     for name in ("oracle_env_steps", "num_tuples"):
         if getattr(config, name) is not None and getattr(config, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
@@ -175,6 +180,8 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
         config = quick_config(config)
     elif config.num_tuples == recipe.num_tuples:  # the recipe's size in its canonical form: the same stage keys
         config = dataclasses.replace(config, num_tuples=None)
+    if config.num_patterns == CLEVR_TRAIN_PATTERNS:  # all of them: the same run as no --num-patterns
+        config = dataclasses.replace(config, num_patterns=None)
     return dataclasses.replace(config, ifp=dataclasses.replace(config.ifp, num_seeds=config.seeds, seed=config.seed))
 
 

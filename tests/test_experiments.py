@@ -171,3 +171,29 @@ def test_python_api_and_command_line_make_the_same_run():
         assert resolve(ExperimentConfig(env=env)) == resolve(command_default)
         parsed = tyro.cli(ExperimentConfig, default=command_default, args=[], config=CLI_CONFIG)
         assert resolve(parsed) == resolve(ExperimentConfig(env=env))
+
+
+def test_table3_shows_its_methods_per_pattern_count(monkeypatch, tmp_path):
+    """Each column is one comparison; methods the comparison's folder also holds stay out of Table 3."""
+    from experiments import patterns as patterns_module
+
+    seen = []
+
+    def fake_compare(args):
+        seen.append((args.experiment.num_patterns, args.methods))
+        k = args.experiment.num_patterns
+        return {
+            "TALAR": {"train": np.array([1.0, 1.0 - 0.1 * (k == 9)])},
+            "One-hot": {"train": np.array([0.5, 0.5])},
+            "GLA": {"train": np.array([0.9, 0.9])},
+        }
+
+    monkeypatch.setattr(patterns_module, "compare", fake_compare)
+    experiment = default_config("clevr", out=tmp_path)
+    table = patterns_module.patterns(
+        patterns_module.PatternsArgs(experiment=experiment, patterns=(1, 9), methods=("talar", "onehot"))
+    )
+    assert [k for k, _ in seen] == [1, 9] and all(methods == ("talar", "onehot") for _, methods in seen)
+    assert "| TALAR | 100.0 ± 0.0 | 95.0 ± 5.0 | 100 / 100 / 99.9 |" in table
+    assert "| One-hot | 50.0 ± 0.0 | 50.0 ± 0.0 | 98.2 / 91.8 / 86.5 |" in table and "GLA" not in table
+    assert (tmp_path / "table3.md").read_text() == table

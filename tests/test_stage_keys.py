@@ -220,3 +220,14 @@ def test_a_study_setting_equal_to_the_recipe_has_the_recipe_runs_keys():
     for setting in (ablation["npn6-na4"], sizes["tuples10000"]):
         assert stage_keys(setting, UPSTREAM, CACHE)["ifp"] != expected[1]["ifp"]
     assert stage_oracle_key(sizes["tuples10000"]) != expected[0]
+
+
+def test_nine_patterns_are_the_full_training_set_and_the_same_run():
+    """Table 3's 9-pattern column is the compare command's run (same keys and folder), 5 patterns another."""
+    from experiments.pipeline import run_name
+
+    base = default_config("clevr", physics="c")
+    nine, five = resolve(dataclasses.replace(base, num_patterns=9)), resolve(dataclasses.replace(base, num_patterns=5))
+    assert (nine.num_patterns, run_name(nine)) == (None, "talar") and run_name(five) == "talar-patterns5"
+    assert _keys(dataclasses.replace(base, num_patterns=9)) == _keys(base)
+    assert _keys(dataclasses.replace(base, num_patterns=5))["ifp"] != _keys(base)["ifp"]
