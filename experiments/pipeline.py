@@ -138,7 +138,12 @@ def quick_config(config: ExperimentConfig) -> ExperimentConfig:
             translator_paraphrases=min(config.talar.translator_paraphrases, 1),  # the code path, not 8x the encoding
         ),
         ifp=dataclasses.replace(
-            config.ifp, num_envs=16, rollout_length=32, total_env_steps=10_240, updates_per_chunk=5, eval_episodes=32
+            config.ifp,
+            num_envs=16,
+            rollout_length=32,
+            total_env_steps=min(config.ifp.total_env_steps, 10_240),  # resolving again keeps a smaller --ifp-env-steps
+            updates_per_chunk=5,
+            eval_episodes=32,
         ),
     )
 

@@ -231,3 +231,11 @@ def test_nine_patterns_are_the_full_training_set_and_the_same_run():
     assert (nine.num_patterns, run_name(nine)) == (None, "talar") and run_name(five) == "talar-patterns5"
     assert _keys(dataclasses.replace(base, num_patterns=9)) == _keys(base)
     assert _keys(dataclasses.replace(base, num_patterns=5))["ifp"] != _keys(base)["ifp"]
+
+
+def test_resolving_a_quick_config_again_keeps_a_smaller_budget():
+    """Commands resolve, then set --ifp-env-steps, then ``run`` resolves again: the budget must survive."""
+    config = resolve(default_config("clevr", physics="c", quick=True))
+    assert config.ifp.total_env_steps == 10_240
+    smaller = dataclasses.replace(config, ifp=dataclasses.replace(config.ifp, total_env_steps=512))
+    assert resolve(smaller).ifp.total_env_steps == 512 and resolve(resolve(smaller)) == resolve(smaller)
