@@ -117,7 +117,8 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     curves, final = {}, {}
     for method in args.methods:
         run(dataclasses.replace(base, method=method))
-    shown = [m for m in METHODS if m in args.methods or m in finished_methods(base, args.methods)]
+    earlier = finished_methods(base, args.methods)  # once: it hashes every method's stage keys
+    shown = [m for m in METHODS if m in args.methods or m in earlier]
     for method in shown:
         config = dataclasses.replace(base, method=method)
         ifp = StageResult(base.out / run_name(config) / "ifp", "", {}, 0.0, True)

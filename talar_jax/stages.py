@@ -64,6 +64,11 @@ class StageResult:
     seconds: float
     reused: bool
 
+    @classmethod
+    def reused_from(cls, stage_dir: Path, record: dict[str, Any]) -> StageResult:
+        """A finished stage taken as it is, from its ``stage.json`` record."""
+        return cls(stage_dir, record["key"], record.get("summary", {}), record.get("seconds", 0.0), True)
+
 
 def run_stage(
     run_dir: str | Path,
@@ -85,7 +90,7 @@ def run_stage(
     record = finished_record(stage_dir)
     if record is not None and record.get("key") == key:
         log(f"[{name}] up to date (key {key}), reusing {stage_dir}")
-        return StageResult(stage_dir, key, record.get("summary", {}), record.get("seconds", 0.0), True)
+        return StageResult.reused_from(stage_dir, record)
     for source in reuse_from:
         found = Path(source) / name
         found_record = finished_record(found)
@@ -97,7 +102,7 @@ def run_stage(
         _remove(stage_dir)
         partial.rename(stage_dir)
         log(f"[{name}] finished with the same key (key {key}) in {found}: copied, not run")
-        return StageResult(stage_dir, key, found_record.get("summary", {}), found_record.get("seconds", 0.0), True)
+        return StageResult.reused_from(stage_dir, found_record)
     if record is not None:
         log(f"[{name}] inputs changed ({record.get('key')} -> {key}): running again")
         _remove(stage_dir)
