@@ -1,7 +1,10 @@
 """Process set-up shared by the entry points (experiments, benchmarks, tests); call before JAX starts.
 
 - the CPU XLA flag MJX needs (deep kinematic chains otherwise compile into exponentially slow code);
-- JAX's persistent compilation cache, so a rerun or a resumed run loads its programs instead of compiling them;
+- JAX's persistent compilation cache, so a rerun or a resumed run loads its programs instead of compiling them; one
+  folder per host CPU (model and instruction-set flags), since XLA:CPU programs are compiled for the host's
+  instruction set and a home folder shared by different machines would otherwise load programs the CPU cannot run
+  (SIGILL);
 - line-buffered stdout, so progress lines reach a log file as they are printed;
 - MuJoCo's offscreen rendering through EGL when no display is available (``MUJOCO_GL=egl`` unless set; rendering
   needs it set before MuJoCo is imported);
@@ -11,11 +14,34 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
+import platform
 import sys
 
 CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
 COMPILE_CACHE_DIR = os.path.join(os.environ.get("TALAR_JAX_CACHE", "~/.cache/talar-jax"), "jax")
+
+
+def host_cpu_fingerprint(cpuinfo: str | None = None) -> str:
+    """A short hash of the CPU model and instruction-set flags (``/proc/cpuinfo``; the platform string elsewhere)."""
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo") as f:
+                cpuinfo = f.read()
+        except OSError:
+            cpuinfo = ""
+    wanted = ("model name", "flags", "features", "cpu model")
+    lines = sorted(
+        {line.split(":", 1)[1].strip() for line in cpuinfo.splitlines() if line.split(":")[0].strip().lower() in wanted}
+    )
+    text = "\n".join([platform.machine(), *lines]) if lines else platform.platform()
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def compile_cache_dir() -> str:
+    """This host's folder of JAX's persistent compilation cache."""
+    return os.path.join(os.path.expanduser(COMPILE_CACHE_DIR), host_cpu_fingerprint())
 
 
 def configure(compile_cache: bool = True) -> None:
@@ -32,7 +58,7 @@ def configure(compile_cache: bool = True) -> None:
     if compile_cache:
         import jax
 
-        jax.config.update("jax_compilation_cache_dir", os.path.expanduser(COMPILE_CACHE_DIR))
+        jax.config.update("jax_compilation_cache_dir", compile_cache_dir())
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
     if hasattr(sys.stdout, "reconfigure") and not sys.stdout.isatty():
         sys.stdout.reconfigure(line_buffering=True)

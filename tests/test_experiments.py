@@ -197,3 +197,14 @@ def test_table3_shows_its_methods_per_pattern_count(monkeypatch, tmp_path):
     assert "| TALAR | 100.0 ± 0.0 | 95.0 ± 5.0 | 100 / 100 / 99.9 |" in table
     assert "| One-hot | 50.0 ± 0.0 | 50.0 ± 0.0 | 98.2 / 91.8 / 86.5 |" in table and "GLA" not in table
     assert (tmp_path / "table3.md").read_text() == table
+
+
+def test_compile_cache_is_per_host_cpu(monkeypatch, tmp_path):
+    from talar_jax import runtime
+
+    avx512 = "processor : 0\nmodel name : Xeon\nflags : fpu avx2 avx512f\n"
+    avx2 = "processor : 0\nmodel name : Xeon\nflags : fpu avx2\n"
+    assert runtime.host_cpu_fingerprint(avx512) != runtime.host_cpu_fingerprint(avx2)
+    assert runtime.host_cpu_fingerprint(avx512) == runtime.host_cpu_fingerprint(avx512 + avx512.replace("0", "1"))
+    monkeypatch.setattr(runtime, "COMPILE_CACHE_DIR", str(tmp_path))
+    assert Path(runtime.compile_cache_dir()) == tmp_path / runtime.host_cpu_fingerprint()
