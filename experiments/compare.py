@@ -23,16 +23,16 @@ from experiments.pipeline import (
     ExperimentConfig,
     check_inputs,
     default_config,
+    finished_summary,
     learning_curve,
     run,
     run_name,
-    stage_keys,
     stage_oracle_key,
 )
 from experiments.recipes import recipe_names
 from talar_jax.language import build_cache
 from talar_jax.report import plot_learning_curves, results_table
-from talar_jax.stages import StageResult, finished_record
+from talar_jax.stages import StageResult
 
 PAPER_MARGIN: dict[str, float] = {"clevr": 13.4, "kitchen": 63.2}
 """TALAR's lead over the best baseline in the paper's Fig. 4, points of success."""
@@ -136,19 +136,11 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
 
 
 def finished_methods(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> list[str]:
-    """Methods (besides ``skip``) whose policy stage in ``base.out`` finished with exactly this comparison's settings:
-    its recorded key is the one ``base`` gives that method (a run at another budget or recipe does not count)."""
-    oracle_key = stage_oracle_key(base)
-    cache_key = build_cache(base.env, base.encoder, progress=False).key
-    found = []
-    for method in METHODS:
-        if method in skip:
-            continue
-        config = dataclasses.replace(base, method=method)  # base is resolved: resolving again resets quick budgets
-        record = finished_record(base.out / run_name(config) / "ifp")
-        if record is not None and record.get("key") == stage_keys(config, oracle_key, cache_key)["ifp"]:
-            found.append(method)
-    return found
+    """Methods (besides ``skip``) whose run finished in ``base.out`` with exactly this comparison's settings
+    (``finished_summary``: a run at another budget or recipe does not count)."""
+    keys = (stage_oracle_key(base), build_cache(base.env, base.encoder, progress=False).key)
+    # base is resolved: resolving again would reset quick budgets
+    return [m for m in METHODS if m not in skip and finished_summary(dataclasses.replace(base, method=m), keys)]
 
 
 def margin_lines(final: dict[str, dict[str, np.ndarray]], env: str) -> str:

@@ -41,7 +41,7 @@ from talar_jax.report import (
     plot_tsne,
     results_table,
 )
-from talar_jax.stages import StageResult, run_stage, stable_hash, to_jsonable
+from talar_jax.stages import StageResult, finished_record, run_stage, stable_hash, to_jsonable
 from talar_jax.talar import TalarConfig, make_task_language_data
 
 
@@ -240,6 +240,20 @@ def stage_oracle(config: ExperimentConfig) -> StageResult:
 def run_name(config: ExperimentConfig) -> str:
     """Folder of a method's stages and report: ``<method>`` or ``<method>-patterns<k>``."""
     return config.method if config.num_patterns is None else f"{config.method}-patterns{config.num_patterns}"
+
+
+def finished_summary(config: ExperimentConfig, keys: tuple[str, str] | None = None) -> dict[str, Any] | None:
+    """The run summary of ``config`` (resolved) when its policy stage finished in ``config.out`` with exactly these
+    settings (its recorded key is the one ``config`` gives: a run at another budget or recipe does not count), else
+    None. ``keys``: (oracle stage key, language-cache key) when already known (several methods of one folder)."""
+    if keys is None:
+        keys = (stage_oracle_key(config), build_cache(config.env, config.encoder, progress=False).key)
+    folder = config.out / run_name(config)
+    record = finished_record(folder / "ifp")
+    if record is None or record.get("key") != stage_keys(config, *keys)["ifp"]:
+        return None
+    path = folder / "summary.json"
+    return json.loads(path.read_text()) if path.is_file() else None
 
 
 def ifp_key(config: ExperimentConfig, method_key: str) -> str:

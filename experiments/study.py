@@ -41,7 +41,14 @@ import tyro  # noqa: E402
 
 from experiments.cli import valid_or_exit  # noqa: E402
 from experiments.compare import env_option  # noqa: E402
-from experiments.pipeline import CLI_CONFIG, ExperimentConfig, check_inputs, default_config, run  # noqa: E402
+from experiments.pipeline import (  # noqa: E402
+    CLI_CONFIG,
+    ExperimentConfig,
+    check_inputs,
+    default_config,
+    finished_summary,
+    run,
+)
 from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
@@ -97,6 +104,10 @@ class StudyArgs:
     """dataset-size: task-dataset sizes (tuples)."""
     ifp_env_steps: int | None = None
     """IFP env steps per seed and setting (default: the env command's, the paper's budget)."""
+    only: tuple[str, ...] = ()
+    """Settings to run in this call (labels as in study.md: npn6-na4, tuples10000, aligned-bert-binary, ...; default:
+    all). The outputs cover every setting whose run finished with the study's settings, so a long study can be run
+    a few settings at a time."""
 
 
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
@@ -127,6 +138,9 @@ def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
             raise ValueError("--dataset-sizes needs positive sizes")
         for size in args.dataset_sizes:
             variants[f"tuples{size}"] = dataclasses.replace(base, num_tuples=size)
+    unknown = [label for label in args.only if label not in variants]
+    if unknown:
+        raise ValueError(f"unknown --only setting(s) {unknown}; this study's settings: {', '.join(variants)}")
     resolved = {}
     for label, variant in variants.items():
         config = check_inputs(dataclasses.replace(variant, out=out / label))
@@ -179,6 +193,9 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
         lines.append(
             f"| {label} | {_cell(success['train'])} | {_cell(success['test'])} | {steps[label]:,} | {minutes} |"
         )
+    missing = [label for label in configs if label not in finals]
+    if missing:
+        lines += ["", f"Not run yet (**partial study**): {', '.join(missing)}."]
     lines += ["", f"Paper: {PAPER[args.name]}."]
     table = "\n".join(lines) + "\n"
     (out / "study.md").write_text(table)
@@ -214,23 +231,32 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
                     "final_success": finals[label]["final_success"],
                 }
                 for label, config in configs.items()
+                if label in finals
             },
+            "not_run": [label for label in configs if label not in finals],
         },
     )
     return table
 
 
 def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -> dict[str, dict[str, Any]]:
-    """Runs every setting (reusing finished stages) and writes the study's figure, table and summary; ``configs``:
-    ``settings(args)`` when already computed (each resolves its encoder folder)."""
+    """Runs the settings of ``--only`` (default: all; reusing finished stages) and writes the study's figure, table
+    and summary over every setting finished with the study's settings; ``configs``: ``settings(args)`` when already
+    computed (each resolves its encoder folder)."""
     configs = configs if configs is not None else settings(args)
     first = next(iter(configs.values())).out
+    selected = [label for label in configs if not args.only or label in args.only]
     finals = {}
-    for index, (label, config) in enumerate(configs.items()):
-        print(f"[study {args.name}] setting {index + 1}/{len(configs)}: {label} -> {config.out}", flush=True)
-        if (args.name == "ablation" or args.name in METHOD_STUDIES) and index > 0:
+    for index, label in enumerate(selected):
+        config = configs[label]
+        print(f"[study {args.name}] setting {index + 1}/{len(selected)}: {label} -> {config.out}", flush=True)
+        if (args.name == "ablation" or args.name in METHOD_STUDIES) and config.out != first:
             share_oracle(first, config.out)
         finals[label] = run(config)
+    for label, config in configs.items():
+        if label not in finals and (summary := finished_summary(config)) is not None:
+            finals[label] = summary
+    finals = {label: finals[label] for label in configs if label in finals}
     print(write_outputs(args, configs, finals))
     return finals
 

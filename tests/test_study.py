@@ -58,6 +58,10 @@ def test_study_outputs_state_their_budget(tmp_path):
     assert summary["env"] == "kitchen" and summary["seeds"] == 2 and summary["method"] == "talar"
     assert summary["ifp_env_steps_per_seed"] == {"tuples1000": 8192, "tuples5000": 8192} and "commit" in summary
     assert (tmp_path / "study.png").stat().st_size > 0
+    partial = study.write_outputs(args, configs, {"tuples5000": finals["tuples5000"]})
+    assert "tuples1000 |" not in partial and "Not run yet (**partial study**): tuples1000." in partial
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert list(summary["settings"]) == ["tuples5000"] and summary["not_run"] == ["tuples1000"]
 
 
 @pytest.mark.parametrize(
@@ -69,6 +73,7 @@ def test_study_outputs_state_their_budget(tmp_path):
         (["dataset-size", "--dataset-sizes", "0"], "positive sizes"),
         (["ablation", "--ifp-env-steps", "0"], "--ifp-env-steps must be >= 1"),
         (["ablation", "--reuse-stages", "/no/such/run"], "--reuse-stages /no/such/run: no such run folder"),
+        (["ablation", "--only", "npn9-na2"], "unknown --only setting(s) ['npn9-na2']; this study's settings: npn2-na2"),
     ],
 )
 def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
@@ -83,8 +88,11 @@ def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
 @pytest.mark.slow
 def test_ablation_quick_end_to_end_shares_the_oracle(tmp_path):
     argv = ["ablation", "--env", "clevr", *QUICK, "--predicates", "2", "--arguments", "1", "2", "--out", str(tmp_path)]
-    finals = study.main(argv)
+    assert list(study.main([*argv, "--only", "npn2-na1"])) == ["npn2-na1"]
+    assert "Not run yet (**partial study**): npn2-na2." in (tmp_path / "study.md").read_text()
+    finals = study.main([*argv, "--only", "npn2-na2"])  # the first setting's finished run joins the outputs
     assert list(finals) == ["npn2-na1", "npn2-na2"]
+    assert "Not run yet" not in (tmp_path / "study.md").read_text()
     assert (tmp_path / "npn2-na2" / "oracle").is_symlink()
     tables = np.load(tmp_path / "npn2-na1" / "talar" / "translator" / "tables.npy")
     assert tables.shape[-1] == 2 + 5  # N_pn + N_a * arg_size
