@@ -233,7 +233,7 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
                 for label, config in configs.items()
                 if label in finals
             },
-            "not_run": [label for label in configs if label not in finals],
+            "not_run": missing,
         },
     )
     return table
