@@ -20,6 +20,7 @@ from pathlib import Path
 
 import tyro
 
+from experiments.cli import valid_or_exit
 from experiments.pipeline import CLI_CONFIG
 
 
@@ -118,8 +119,6 @@ def selected(args: PaperArgs) -> list[Job]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from experiments.cli import valid_or_exit
-
     args = tyro.cli(PaperArgs, args=argv, config=CLI_CONFIG, description=__doc__)
     todo = valid_or_exit(selected, args)
     for index, job in enumerate(todo):

@@ -48,9 +48,11 @@ from experiments.pipeline import (  # noqa: E402
     default_config,
     finished_summary,
     run,
+    stage_oracle_key,
 )
 from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
+from talar_jax.language import build_cache  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
@@ -253,9 +255,13 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
         if (args.name == "ablation" or args.name in METHOD_STUDIES) and config.out != first:
             share_oracle(first, config.out)
         finals[label] = run(config)
-    for label, config in configs.items():
-        if label not in finals and (summary := finished_summary(config)) is not None:
-            finals[label] = summary
+    rest = [label for label in configs if label not in finals]
+    if rest:  # the language cache is the same for every setting: read its key once
+        cache_key = build_cache(configs[rest[0]].env, configs[rest[0]].encoder, progress=False).key
+        for label in rest:
+            summary = finished_summary(configs[label], (stage_oracle_key(configs[label]), cache_key))
+            if summary is not None:
+                finals[label] = summary
     finals = {label: finals[label] for label in configs if label in finals}
     print(write_outputs(args, configs, finals))
     return finals
