@@ -20,7 +20,9 @@ import platform
 import sys
 
 CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
-COMPILE_CACHE_DIR = os.path.join(os.environ.get("TALAR_JAX_CACHE", "~/.cache/talar-jax"), "jax")
+# Its own variable: $TALAR_JAX_CACHE names the language cache folder itself (talar_jax.language.cache).
+COMPILE_CACHE_ENV_VAR = "TALAR_JAX_COMPILE_CACHE"
+COMPILE_CACHE_DIR = "~/.cache/talar-jax/jax"
 
 
 def host_cpu_fingerprint(cpuinfo: str | None = None) -> str:
@@ -41,7 +43,8 @@ def host_cpu_fingerprint(cpuinfo: str | None = None) -> str:
 
 def compile_cache_dir() -> str:
     """This host's folder of JAX's persistent compilation cache."""
-    return os.path.join(os.path.expanduser(COMPILE_CACHE_DIR), host_cpu_fingerprint())
+    root = os.environ.get(COMPILE_CACHE_ENV_VAR) or COMPILE_CACHE_DIR
+    return os.path.join(os.path.expanduser(root), host_cpu_fingerprint())
 
 
 def configure(compile_cache: bool = True) -> None:

@@ -206,5 +206,9 @@ def test_compile_cache_is_per_host_cpu(monkeypatch, tmp_path):
     avx2 = "processor : 0\nmodel name : Xeon\nflags : fpu avx2\n"
     assert runtime.host_cpu_fingerprint(avx512) != runtime.host_cpu_fingerprint(avx2)
     assert runtime.host_cpu_fingerprint(avx512) == runtime.host_cpu_fingerprint(avx512 + avx512.replace("0", "1"))
+    monkeypatch.delenv(runtime.COMPILE_CACHE_ENV_VAR, raising=False)
+    monkeypatch.setenv("TALAR_JAX_CACHE", str(tmp_path / "language"))  # the language cache's variable: not this one
     monkeypatch.setattr(runtime, "COMPILE_CACHE_DIR", str(tmp_path))
     assert Path(runtime.compile_cache_dir()) == tmp_path / runtime.host_cpu_fingerprint()
+    monkeypatch.setenv(runtime.COMPILE_CACHE_ENV_VAR, str(tmp_path / "jax"))
+    assert Path(runtime.compile_cache_dir()) == tmp_path / "jax" / runtime.host_cpu_fingerprint()
