@@ -29,6 +29,9 @@ def main() -> None:
     folder, run_root = args.method_dir, args.method_dir.parent
     if not (folder / "summary.json").is_file():
         sys.exit(f"error: {folder} has no summary.json (not a finished method folder)")
+    # before anything is written: the record's own files would make every tree look dirty
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip())
     args.dest.mkdir(parents=True, exist_ok=True)
     for name in (
         "config.json",
@@ -51,8 +54,6 @@ def main() -> None:
         shutil.copy(run_root / "oracle" / "oracle.json", args.dest / "oracle.json")
     rows = [json.loads(line) for line in metrics.read_text().splitlines()]
     config = json.loads((folder / "config.json").read_text())
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip())
     provenance = {
         "command": args.command,
         "commit": commit,
