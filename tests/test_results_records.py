@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -22,3 +23,17 @@ def test_every_recorded_summary_states_its_budget():
         recorded = {**summary, **summary.get("recorded", {})}
         assert recorded["env"] in ("clevr", "kitchen") and recorded["seeds"] == len(summary["final_success"]["train"])
         assert recorded["ifp_env_steps_per_seed"] > 0, path
+
+
+def test_results_page_tables_are_well_formed():
+    """Each markdown table row on the results page has its header's number of cells (a row pasted into the wrong
+    table, e.g. a runs-table line among the paper items, fails here)."""
+    header_cells = None
+    for number, line in enumerate((ROOT / "results" / "README.md").read_text().splitlines(), 1):
+        if not line.startswith("|"):
+            header_cells = None
+            continue
+        cells = re.sub(r"`[^`]*`", "", line).count("|") - 1  # a "|" inside inline code is not a cell border
+        if header_cells is None:
+            header_cells = cells
+        assert cells == header_cells, f"results/README.md:{number} has {cells} cells, its table {header_cells}"
