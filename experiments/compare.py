@@ -135,12 +135,23 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     return final
 
 
-def finished_methods(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> list[str]:
-    """Methods (besides ``skip``) whose run finished in ``base.out`` with exactly this comparison's settings
-    (``finished_summary``: a run at another budget or recipe does not count)."""
+def finished_summaries(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> dict[str, dict]:
+    """Method -> run summary of each method (besides ``skip``) whose run finished in ``base.out`` with exactly this
+    comparison's settings (``finished_summary``: a run at another budget or recipe does not count)."""
+    candidates = [
+        m for m in METHODS if m not in skip and (base.out / run_name(dataclasses.replace(base, method=m))).is_dir()
+    ]
+    if not candidates:  # nothing to hash (the language cache's key needs its encoder)
+        return {}
     keys = (stage_oracle_key(base), build_cache(base.env, base.encoder, progress=False).key)
     # base is resolved: resolving again would reset quick budgets
-    return [m for m in METHODS if m not in skip and finished_summary(dataclasses.replace(base, method=m), keys)]
+    summaries = {m: finished_summary(dataclasses.replace(base, method=m), keys) for m in candidates}
+    return {m: summary for m, summary in summaries.items() if summary is not None}
+
+
+def finished_methods(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> list[str]:
+    """Methods (besides ``skip``) whose run finished in ``base.out`` with exactly this comparison's settings."""
+    return list(finished_summaries(base, skip))
 
 
 def margin_lines(final: dict[str, dict[str, np.ndarray]], env: str) -> str:

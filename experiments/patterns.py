@@ -15,7 +15,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from experiments.compare import CompareArgs, compare, main_with
+from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
 from experiments.methods import METHOD_LABELS
 from experiments.pipeline import ExperimentConfig, default_config
 
@@ -49,18 +49,41 @@ class PatternsArgs:
         return CompareArgs(experiment=experiment, methods=self.methods, ifp_env_steps=self.ifp_env_steps)
 
 
+TABLE3_METHODS: tuple[str, ...] = ("talar", "onehot", "bert-binary", "bert-continuous")
+TABLE3_PATTERNS: tuple[int, ...] = (1, 5, 9)
+
+
+def _cell(train_rates) -> str:
+    rates = np.asarray(train_rates) * 100
+    return f"{rates.mean():.1f} ± {rates.std():.1f}"
+
+
 def patterns(args: PatternsArgs) -> str:
-    rows: dict[str, list[str]] = {}
+    """Runs each column of ``--patterns`` and writes ``table3.md`` over the paper's rows and columns (plus those of
+    this call): cells of this call's runs, of runs finished earlier in the folder with the same settings (one method
+    or pattern count per call adds up to one table), and "-" for those not run yet."""
+    methods = TABLE3_METHODS + tuple(m for m in args.methods if m not in TABLE3_METHODS)
+    columns = sorted(set(TABLE3_PATTERNS) | set(args.patterns))
+    cells: dict[tuple[str, int], str] = {}
     for k in args.patterns:
-        final = compare(args.comparison(k))
-        for label in [METHOD_LABELS[method] for method in args.methods]:  # compare.md may show more of its folder
-            rates = np.asarray(final[label]["train"]) * 100
-            rows.setdefault(label, []).append(f"{rates.mean():.1f} ± {rates.std():.1f}")
-    header = "| method | " + " | ".join(f"{k} patterns" for k in args.patterns) + " | paper (1 / 5 / 9) |"
-    lines = ["### Success on training instructions (%), CLEVR", "", header, "|---|" + "---|" * (len(args.patterns) + 1)]
-    for label, cells in rows.items():
+        final = compare(args.comparison(k))  # also holds the folder's earlier runs of this column
+        for method in methods:
+            if METHOD_LABELS[method] in final:
+                cells[(method, k)] = _cell(final[METHOD_LABELS[method]]["train"])
+    for k in columns:
+        if k not in args.patterns:
+            for method, summary in finished_summaries(base_config(args.comparison(k))).items():
+                if method in methods:
+                    cells[(method, k)] = _cell(summary["final_success"]["train"])
+    header = (
+        "| method | " + " | ".join(f"{k} pattern{'s' if k != 1 else ''}" for k in columns) + " | paper (1 / 5 / 9) |"
+    )
+    lines = ["### Success on training instructions (%), CLEVR", "", header, "|---|" + "---|" * (len(columns) + 1)]
+    for method in methods:
+        label = METHOD_LABELS[method]
         paper = " / ".join(f"{v:g}" for v in PAPER.get(label, ())) or "-"
-        lines.append(f"| {label} | " + " | ".join(cells) + f" | {paper} |")
+        lines.append(f"| {label} | " + " | ".join(cells.get((method, k), "-") for k in columns) + f" | {paper} |")
+    lines += ["", '"-": not run in this folder yet with these settings.']
     table = "\n".join(lines) + "\n"
     out = args.experiment.out
     out.mkdir(parents=True, exist_ok=True)

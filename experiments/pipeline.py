@@ -446,6 +446,10 @@ def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
     return valid_or_exit(check_inputs, config)
 
 
+REPORT_FILES = ("config.json", "results.md", "summary.json", "curves.png", "tsne.png", "deployment.png")
+"""A run folder's report files (tsne.png and deployment.png only where the method has codes to show)."""
+
+
 def run(config: ExperimentConfig) -> dict[str, Any]:
     """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
     config = check_inputs(config)
@@ -469,5 +473,6 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
         print(write_deployment_strip(config, folder, cache))
     summary["wall_s_this_call"] = time.perf_counter() - start
     print((folder / "results.md").read_text())
-    print(f"outputs in {folder}: config.json, results.md, summary.json, curves.png, tsne.png, deployment.png")
+    written = [name for name in REPORT_FILES if (folder / name).is_file()]
+    print(f"outputs in {folder}: {', '.join(written)}")
     return summary

@@ -174,10 +174,11 @@ def test_python_api_and_command_line_make_the_same_run():
 
 
 def test_table3_shows_its_methods_per_pattern_count(monkeypatch, tmp_path):
-    """Each column is one comparison; methods the comparison's folder also holds stay out of Table 3."""
+    """Each column is one comparison; the table keeps the paper's rows and columns, fills cells of runs finished in
+    earlier calls, marks the rest "-", and leaves out other methods the comparison's folder holds."""
     from experiments import patterns as patterns_module
 
-    seen = []
+    seen, looked_up = [], []
 
     def fake_compare(args):
         seen.append((args.experiment.num_patterns, args.methods))
@@ -188,14 +189,24 @@ def test_table3_shows_its_methods_per_pattern_count(monkeypatch, tmp_path):
             "GLA": {"train": np.array([0.9, 0.9])},
         }
 
+    def fake_finished(base):
+        looked_up.append(base.num_patterns)
+        final = {"final_success": {"train": [0.6, 0.8]}}
+        return {"bert-binary": final, "gla": final} if base.num_patterns == 5 else {}
+
     monkeypatch.setattr(patterns_module, "compare", fake_compare)
+    monkeypatch.setattr(patterns_module, "finished_summaries", fake_finished)
     experiment = default_config("clevr", out=tmp_path)
     table = patterns_module.patterns(
         patterns_module.PatternsArgs(experiment=experiment, patterns=(1, 9), methods=("talar", "onehot"))
     )
     assert [k for k, _ in seen] == [1, 9] and all(methods == ("talar", "onehot") for _, methods in seen)
-    assert "| TALAR | 100.0 ± 0.0 | 95.0 ± 5.0 | 100 / 100 / 99.9 |" in table
-    assert "| One-hot | 50.0 ± 0.0 | 50.0 ± 0.0 | 98.2 / 91.8 / 86.5 |" in table and "GLA" not in table
+    assert looked_up == [5]  # only the column this call did not run is read from the folder
+    assert "| method | 1 pattern | 5 patterns | 9 patterns | paper (1 / 5 / 9) |" in table
+    assert "| TALAR | 100.0 ± 0.0 | - | 95.0 ± 5.0 | 100 / 100 / 99.9 |" in table
+    assert "| One-hot | 50.0 ± 0.0 | - | 50.0 ± 0.0 | 98.2 / 91.8 / 86.5 |" in table
+    assert "| BERT-binary | - | 70.0 ± 10.0 | - | 82 / 60.9 / 64 |" in table
+    assert "| BERT-continuous | - | - | - | 95.3 / 63.1 / 60.7 |" in table and "GLA" not in table
     assert (tmp_path / "table3.md").read_text() == table
 
 
