@@ -12,12 +12,12 @@ import dataclasses
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import tyro
 
 from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
 from experiments.methods import METHOD_LABELS
 from experiments.pipeline import ExperimentConfig, default_config
+from talar_jax.report import percent_cell
 
 PAPER = {
     "TALAR": (100.0, 100.0, 99.9),
@@ -53,11 +53,6 @@ TABLE3_METHODS: tuple[str, ...] = ("talar", "onehot", "bert-binary", "bert-conti
 TABLE3_PATTERNS: tuple[int, ...] = (1, 5, 9)
 
 
-def _cell(train_rates) -> str:
-    rates = np.asarray(train_rates) * 100
-    return f"{rates.mean():.1f} ± {rates.std():.1f}"
-
-
 def patterns(args: PatternsArgs) -> str:
     """Runs each column of ``--patterns`` and writes ``table3.md`` over the paper's rows and columns (plus those of
     this call): cells of this call's runs, of runs finished earlier in the folder with the same settings (one method
@@ -69,12 +64,12 @@ def patterns(args: PatternsArgs) -> str:
         final = compare(args.comparison(k))  # also holds the folder's earlier runs of this column
         for method in methods:
             if METHOD_LABELS[method] in final:
-                cells[(method, k)] = _cell(final[METHOD_LABELS[method]]["train"])
+                cells[(method, k)] = percent_cell(final[METHOD_LABELS[method]]["train"])
     for k in columns:
         if k not in args.patterns:
             for method, summary in finished_summaries(base_config(args.comparison(k))).items():
                 if method in methods:
-                    cells[(method, k)] = _cell(summary["final_success"]["train"])
+                    cells[(method, k)] = percent_cell(summary["final_success"]["train"])
     header = (
         "| method | " + " | ".join(f"{k} pattern{'s' if k != 1 else ''}" for k in columns) + " | paper (1 / 5 / 9) |"
     )

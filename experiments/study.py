@@ -54,6 +54,7 @@ from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
+from talar_jax.report import percent_cell  # noqa: E402
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
@@ -166,11 +167,6 @@ def share_oracle(first: Path, target: Path) -> None:
 HEADER = "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed | IFP wall-clock (min) |"
 
 
-def _cell(values: list[float]) -> str:
-    rates = 100 * np.asarray(values)
-    return f"{rates.mean():.1f} ± {rates.std():.1f}"
-
-
 def ifp_seconds(summary: dict[str, Any]) -> float | None:
     """Wall-clock seconds of a setting's IFP stage (all its seeds, when it ran), from its run summary."""
     seconds = [value for name, value in summary.get("stage_seconds", {}).items() if name.endswith("ifp")]
@@ -192,9 +188,8 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
     for label, summary in finals.items():
         success = summary["final_success"]
         minutes = f"{ifp_seconds(summary) / 60:.1f}" if ifp_seconds(summary) is not None else "-"
-        lines.append(
-            f"| {label} | {_cell(success['train'])} | {_cell(success['test'])} | {steps[label]:,} | {minutes} |"
-        )
+        train, test = percent_cell(success["train"]), percent_cell(success["test"])
+        lines.append(f"| {label} | {train} | {test} | {steps[label]:,} | {minutes} |")
     missing = [label for label in configs if label not in finals]
     if missing:
         lines += ["", f"Not run yet (**partial study**): {', '.join(missing)}."]

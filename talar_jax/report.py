@@ -183,6 +183,12 @@ def plot_tsne_grid(
     return _save(fig, path, dpi=110)
 
 
+def percent_cell(rates: Sequence[float] | np.ndarray) -> str:
+    """``mean ± std`` in % of success rates in [0, 1] (one per seed), as every results table shows them."""
+    percent = 100 * np.asarray(rates, float)
+    return f"{percent.mean():.1f} ± {percent.std():.1f}"
+
+
 def results_table(final: Mapping[str, Mapping[str, np.ndarray]], title: str = "") -> str:
     """Markdown table of final success rates: method -> split -> (num_seeds,) rates in [0, 1]."""
     splits = sorted({s for per_split in final.values() for s in per_split}, key=["train", "test"].index)
@@ -192,8 +198,8 @@ def results_table(final: Mapping[str, Mapping[str, np.ndarray]], title: str = ""
     for method, per_split in final.items():
         cells = []
         for split in splits:
-            rates = np.asarray(per_split.get(split, []), float) * 100
-            cells.append(f"{rates.mean():.1f} ± {rates.std():.1f} (n={rates.size})" if rates.size else "-")
+            rates = np.asarray(per_split.get(split, []), float)
+            cells.append(f"{percent_cell(rates)} (n={rates.size})" if rates.size else "-")
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
