@@ -18,6 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from talar_jax.report import REPORT_FILES
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -33,15 +35,7 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip())
     args.dest.mkdir(parents=True, exist_ok=True)
-    for name in (
-        "config.json",
-        "results.md",
-        "summary.json",
-        "curves.png",
-        "tsne.png",
-        "deployment.png",
-        "language.json",
-    ):
+    for name in REPORT_FILES:
         if (folder / name).is_file():
             shutil.copy(folder / name, args.dest / name)
     for marker in sorted(run_root.glob("**/stage.json")):

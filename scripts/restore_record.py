@@ -18,8 +18,9 @@ import shutil
 import sys
 from pathlib import Path
 
+from talar_jax.report import REPORT_FILES
+
 MARKER = "RESTORED_FROM_RECORD"
-COPIED = ("config.json", "summary.json", "language.json", "results.md", "curves.png", "tsne.png", "deployment.png")
 
 
 def restore(record: Path, dest: Path) -> list[str]:
@@ -35,7 +36,7 @@ def restore(record: Path, dest: Path) -> list[str]:
         raise ValueError(f"{dest} holds a run; restore into an empty folder")
     (dest / "ifp" / "ppo").mkdir(parents=True, exist_ok=True)
     written = []
-    for name in COPIED:
+    for name in REPORT_FILES:
         if (record / name).is_file():
             shutil.copy(record / name, dest / name)
             written.append(name)

@@ -8,6 +8,18 @@ from pathlib import Path
 
 import numpy as np
 
+# The small report files of a finished method folder that a results/ record keeps (scripts/record_result.py) and
+# that scripts/restore_record.py puts back; a folder has those of them its method writes.
+REPORT_FILES: tuple[str, ...] = (
+    "config.json",
+    "results.md",
+    "summary.json",
+    "curves.png",
+    "tsne.png",
+    "deployment.png",
+    "language.json",
+)
+
 
 @dataclass(frozen=True)
 class LearningCurve:
