@@ -189,7 +189,10 @@ def plot_tsne_grid(
         for col, (split, mask) in enumerate((("training", is_train), ("test", ~is_train))):
             ax = axes[row, col]
             _scatter_goals(ax, points[mask], labels[mask], label_names, legend=row == 0 and col == 0)
-            ax.set_title(f"{name}, {split} instructions", fontsize=9)
+            if row == 0:
+                ax.set_title(f"{split} instructions", fontsize=10)
+            if col == 0:  # the representation names its row (long names overlapped as panel titles)
+                ax.set_ylabel(name, fontsize=9)
     if title:
         fig.suptitle(title)
     return _save(fig, path, dpi=110)
