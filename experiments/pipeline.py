@@ -25,7 +25,6 @@ from experiments.methods import METHOD_LABELS, METHODS, MethodContext, MethodSet
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
 from experiments.recipes import get_recipe
-from talar_jax.agent import LANGUAGE_RECORD
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import SPLITS
 from talar_jax.dataset import TaskDataset
@@ -34,6 +33,8 @@ from talar_jax.logging import MultiLogger, TensorBoardLogger, TerminalLogger
 from talar_jax.ppo import PPOConfig, run_ppo
 from talar_jax.provenance import provenance
 from talar_jax.report import (
+    LANGUAGE_RECORD,
+    REPORT_FILES,
     GoalCurves,
     LearningCurve,
     plot_deployment_strip,
@@ -444,10 +445,6 @@ CLI_CONFIG = (tyro.conf.AvoidSubcommands,)
 def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
     """``check_inputs(config)``, or one ``error: ...`` line on stderr and exit status 2."""
     return valid_or_exit(check_inputs, config)
-
-
-REPORT_FILES = ("config.json", "results.md", "summary.json", "curves.png", "tsne.png", "deployment.png")
-"""A run folder's report files (tsne.png and deployment.png only where the method has codes to show)."""
 
 
 def run(config: ExperimentConfig) -> dict[str, Any]:

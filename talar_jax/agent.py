@@ -32,10 +32,10 @@ from talar_jax.baselines import NLEncodingLayer
 from talar_jax.checkpoint import load_tree
 from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features, sentence_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
+from talar_jax.report import LANGUAGE_RECORD
 from talar_jax.talar import TalarConfig, make_translate
 from talar_jax.task_language import TaskLanguageSpec
 
-LANGUAGE_RECORD = "language.json"
 """File of a method folder naming the encoder a run trained with (written by the experiment pipeline)."""
 TRANSLATOR_STAGES = {"talar": "talar/translator", "handcrafted": "handcrafted/translator", "gla": "gla/translator"}
 ENCODING_LAYER_METHODS = ("bert-binary", "bert-continuous", "pretrained-bert-binary", "pretrained-bert-continuous")

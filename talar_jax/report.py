@@ -8,17 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-# The small report files of a finished method folder that a results/ record keeps (scripts/record_result.py) and
-# that scripts/restore_record.py puts back; a folder has those of them its method writes.
-REPORT_FILES: tuple[str, ...] = (
-    "config.json",
-    "results.md",
-    "summary.json",
-    "curves.png",
-    "tsne.png",
-    "deployment.png",
-    "language.json",
-)
+LANGUAGE_RECORD = "language.json"
+"""A run folder's record of the text encoder and language cache it trained with (written by the pipeline, read by
+the agent)."""
+
+REPORT_FILES = ("config.json", "results.md", "summary.json", "curves.png", "tsne.png", "deployment.png")
+"""A run folder's report files (tsne.png and deployment.png only where the method has codes to show); with
+``LANGUAGE_RECORD``, what a results/ record keeps (scripts/record_result.py) and scripts/restore_record.py puts back."""
 
 
 @dataclass(frozen=True)
