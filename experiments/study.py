@@ -21,8 +21,10 @@ Each setting is one experiment folder under ``--out`` (default ``runs/study-<nam
 so an interrupted study resumes where it stopped. The ablation's settings share the first one's oracle and task
 dataset (a link to its ``oracle`` folder), as do the methods of the aligned and end-to-end studies; dataset sizes
 collect their own. Writes ``study.png`` (final success per setting, train and test instructions, mean ± std over
-seeds), ``study.md`` and ``summary.json`` (env, method, IFP env steps per seed, seeds, command and commit beside every
-setting's final success per seed).
+seeds), ``study-curves.png`` (success over env steps per setting, as the paper's figures draw them), ``study.md``
+(final success, and how fast each setting learns: the env steps at which the mean over seeds first reaches 80 % on
+training instructions and the mean success over the curve) and ``summary.json`` (env, method, IFP env steps per seed,
+seeds, command and commit beside every setting's final success per seed and its learning-speed figures).
 """
 
 from __future__ import annotations
@@ -47,14 +49,17 @@ from experiments.pipeline import (  # noqa: E402
     check_inputs,
     default_config,
     finished_summary,
+    learning_curve,
     run,
+    run_name,
     stage_oracle_key,
 )
 from experiments.recipes import recipe_names  # noqa: E402
 from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
-from talar_jax.report import percent_cell  # noqa: E402
+from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves  # noqa: E402
+from talar_jax.stages import StageResult  # noqa: E402
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
@@ -111,6 +116,9 @@ class StudyArgs:
     """Settings to run in this call (labels as in study.md: npn6-na4, tuples10000, aligned-bert-binary, ...; default:
     all). The outputs cover every setting whose run finished with the study's settings, so a long study can be run
     a few settings at a time."""
+    report_only: bool = False
+    """Run nothing: rewrite the study's figures, table and summary over the settings already finished (after
+    restoring recorded runs with ``scripts/restore_record.py``, or after a change to the report)."""
 
 
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
@@ -141,6 +149,8 @@ def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
             raise ValueError("--dataset-sizes needs positive sizes")
         for size in args.dataset_sizes:
             variants[f"tuples{size}"] = dataclasses.replace(base, num_tuples=size)
+    if args.report_only and args.only:
+        raise ValueError("--report-only runs no setting: drop --only")
     unknown = [label for label in args.only if label not in variants]
     if unknown:
         raise ValueError(f"unknown --only setting(s) {unknown}; this study's settings: {', '.join(variants)}")
@@ -164,7 +174,32 @@ def share_oracle(first: Path, target: Path) -> None:
     os.symlink(os.path.relpath(source.resolve(), target.resolve()), target / "oracle")
 
 
-HEADER = "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed | IFP wall-clock (min) |"
+HEADER = (
+    "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed | IFP wall-clock (min) "
+    "| 80 % first reached (env steps) | mean success over the curve (%) |"
+)
+SPEED_THRESHOLD = 0.8
+"""Learning speed: the first evaluation at which the mean success over seeds (training instructions) reaches it."""
+
+
+def setting_curve(config: ExperimentConfig) -> LearningCurve | None:
+    """A setting's learning curve from its IFP's ``metrics.jsonl`` (also in a restored record); None without one."""
+    ifp = config.out / run_name(config) / "ifp"
+    if not (ifp / "ppo" / "metrics.jsonl").is_file():
+        return None
+    curve = learning_curve(StageResult(ifp, "", {}, 0.0, True))
+    return curve if curve.env_steps.size else None
+
+
+def learning_speed(curve: LearningCurve) -> dict[str, float | int | None]:
+    """Training instructions: the env steps at which the mean over seeds first reaches ``SPEED_THRESHOLD`` (None:
+    never) and the mean success over the curve (mean over seeds, then over evaluations)."""
+    mean = np.asarray(curve.success["train"], float).mean(0)
+    reached = np.flatnonzero(mean >= SPEED_THRESHOLD)
+    return {
+        "env_steps_to_80_percent": int(curve.env_steps[reached[0]]) if reached.size else None,
+        "curve_mean_success": float(mean.mean()),
+    }
 
 
 def ifp_seconds(summary: dict[str, Any]) -> float | None:
@@ -184,12 +219,19 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
         "",
         HEADER,
     ]
-    lines.append("|---|---:|---:|---:|---:|")
+    lines.append("|---|---:|---:|---:|---:|---:|---:|")
+    curves = {label: curve for label in finals if (curve := setting_curve(configs[label])) is not None}
+    speeds = {label: learning_speed(curve) for label, curve in curves.items()}
     for label, summary in finals.items():
         success = summary["final_success"]
         minutes = f"{ifp_seconds(summary) / 60:.1f}" if ifp_seconds(summary) is not None else "-"
         train, test = percent_cell(success["train"]), percent_cell(success["test"])
-        lines.append(f"| {label} | {train} | {test} | {steps[label]:,} | {minutes} |")
+        speed = speeds.get(label, {})
+        reached = "never" if label in speeds else "-"
+        if speed.get("env_steps_to_80_percent") is not None:
+            reached = f"{speed['env_steps_to_80_percent']:,}"
+        area = f"{100 * speed['curve_mean_success']:.1f}" if speed else "-"
+        lines.append(f"| {label} | {train} | {test} | {steps[label]:,} | {minutes} | {reached} | {area} |")
     missing = [label for label in configs if label not in finals]
     if missing:
         lines += ["", f"Not run yet (**partial study**): {', '.join(missing)}."]
@@ -210,6 +252,8 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
     figure.tight_layout()
     figure.savefig(out / "study.png", dpi=120)
     plt.close(figure)
+    if curves:
+        plot_learning_curves(curves, out / "study-curves.png", title=f"{args.name}, {first.env}")
 
     write_json_atomic(
         out / "summary.json",
@@ -226,6 +270,7 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
                     "folder": str(config.out),
                     "method": config.method,
                     "final_success": finals[label]["final_success"],
+                    "learning_speed": speeds.get(label),
                 }
                 for label, config in configs.items()
                 if label in finals
@@ -242,7 +287,7 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
     computed (each resolves its encoder folder)."""
     configs = configs if configs is not None else settings(args)
     first = next(iter(configs.values())).out
-    selected = [label for label in configs if not args.only or label in args.only]
+    selected = [] if args.report_only else [label for label in configs if not args.only or label in args.only]
     finals = {}
     for index, label in enumerate(selected):
         config = configs[label]
@@ -258,6 +303,9 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
             if summary is not None:
                 finals[label] = summary
     finals = {label: finals[label] for label in configs if label in finals}
+    if not finals:
+        where = first.parent
+        raise SystemExit(f"error: no setting of the {args.name} study has finished in {where}: nothing to report")
     print(write_outputs(args, configs, finals))
     return finals
 

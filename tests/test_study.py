@@ -52,11 +52,24 @@ def test_study_outputs_state_their_budget(tmp_path):
         }
         for label in configs
     }
+    # tuples5000's IFP logged three evaluations: mean over seeds 0.25, 0.875, 1.0 on training instructions
+    ppo = configs["tuples5000"].out / "talar" / "ifp" / "ppo"
+    ppo.mkdir(parents=True)
+    rows = [(2048, [0.0, 0.5]), (4096, [0.75, 1.0]), (8192, [1.0, 1.0])]
+    lines = [{"train/env_steps": n, "eval/train/success_per_seed": r, "eval/test/success_per_seed": r} for n, r in rows]
+    (ppo / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in [{"train/sps": 1.0}, *lines]))
     table = study.write_outputs(args, configs, finals)
-    assert "| tuples1000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 | 1.5 |" in table and "Paper:" in table
+    assert "| tuples1000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 | 1.5 | - | - |" in table and "Paper:" in table
+    assert "| tuples5000 | 75.0 ± 25.0 | 50.0 ± 25.0 | 8,192 | 1.5 | 4,096 | 70.8 |" in table
+    assert (tmp_path / "study-curves.png").stat().st_size > 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["env"] == "kitchen" and summary["seeds"] == 2 and summary["method"] == "talar"
     assert summary["ifp_env_steps_per_seed"] == {"tuples1000": 8192, "tuples5000": 8192} and "commit" in summary
+    assert summary["settings"]["tuples1000"]["learning_speed"] is None
+    assert summary["settings"]["tuples5000"]["learning_speed"] == {
+        "env_steps_to_80_percent": 4096,
+        "curve_mean_success": pytest.approx(0.7083333),
+    }
     assert (tmp_path / "study.png").stat().st_size > 0
     partial = study.write_outputs(args, configs, {"tuples5000": finals["tuples5000"]})
     assert "tuples1000 |" not in partial and "Not run yet (**partial study**): tuples1000." in partial
@@ -74,6 +87,7 @@ def test_study_outputs_state_their_budget(tmp_path):
         (["ablation", "--ifp-env-steps", "0"], "--ifp-env-steps must be >= 1"),
         (["ablation", "--reuse-stages", "/no/such/run"], "--reuse-stages /no/such/run: no such run folder"),
         (["ablation", "--only", "npn9-na2"], "unknown --only setting(s) ['npn9-na2']; this study's settings: npn2-na2"),
+        (["end-to-end", "--report-only", "--only", "talar"], "--report-only runs no setting: drop --only"),
     ],
 )
 def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
@@ -83,6 +97,16 @@ def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and message in err and "\n" not in err
     assert not (tmp_path / "never").exists()
+
+
+def test_report_only_runs_nothing_and_says_when_nothing_finished(tmp_path):
+    base = default_config("kitchen", seeds=2, out=tmp_path, encoder=TINY_BERT)
+    args = study.StudyArgs("end-to-end", base, report_only=True)
+    with pytest.raises(SystemExit) as exit_info:
+        study.study(args)
+    message = str(exit_info.value.code)
+    assert message.startswith("error: no setting of the end-to-end study has finished") and "\n" not in message
+    assert not any((tmp_path / label).exists() for label in ("talar", "end-to-end"))
 
 
 @pytest.mark.slow
