@@ -5,7 +5,8 @@
 
 - ``config.json``: the resolved experiment config (env, env options, method, encoder, sentence readout, TL shape);
 - ``language.json``: the encoder's name and weights sha256 and the language cache key the run trained with;
-- ``<method>/translator/params.msgpack`` (TALAR, Handcrafted, GLA): the seed-stacked translators;
+- ``<method>/translator/params.msgpack`` (TALAR, Handcrafted, GLA): the seed-stacked translators (end-to-end TALAR:
+  the ``translator`` entry of ``end-to-end/joint/params.msgpack``);
 - ``ifp/ppo/checkpoints``: the policy (and, for BERT-*, the instruction encoding layer) after the last chunk.
 
 Then ``agent.encode(sentences)`` gives the features the translator reads, ``agent.translate(sentences)`` the
@@ -37,7 +38,12 @@ from talar_jax.talar import TalarConfig, make_translate
 from talar_jax.task_language import TaskLanguageSpec
 
 """File of a method folder naming the encoder a run trained with (written by the experiment pipeline)."""
-TRANSLATOR_STAGES = {"talar": "talar/translator", "handcrafted": "handcrafted/translator", "gla": "gla/translator"}
+TRANSLATOR_STAGES = {
+    "talar": "talar/translator",
+    "handcrafted": "handcrafted/translator",
+    "gla": "gla/translator",
+    "end-to-end": "end-to-end/joint",  # the joint fit's parameters: {"generator", "receiver", "translator"}
+}
 ENCODING_LAYER_METHODS = ("bert-binary", "bert-continuous", "pretrained-bert-binary", "pretrained-bert-continuous")
 
 
@@ -115,12 +121,12 @@ class Agent:
         if self.method == "onehot":
             raise AgentError(
                 "a One-hot run gives every training sentence its own code and has no way to read a new sentence; "
-                "load a TALAR, Handcrafted, GLA or BERT-* run"
+                "load a TALAR, end-to-end TALAR, Handcrafted, GLA or BERT-* run"
             )
         if self.method not in TRANSLATOR_STAGES and self.method not in ENCODING_LAYER_METHODS:
             raise AgentError(
-                f"method {self.method!r} has no sentence encoding an agent can use; load a TALAR, Handcrafted, GLA "
-                "or BERT-* run"
+                f"method {self.method!r} has no sentence encoding an agent can use; load a TALAR, end-to-end TALAR, "
+                "Handcrafted, GLA or BERT-* run"
             )
         seeds = int(self.config["seeds"])
         if not 0 <= seed < seeds:
@@ -166,7 +172,7 @@ class Agent:
     def _make_encoding(self, params: dict[str, Any]):
         if self.method in TRANSLATOR_STAGES:
             talar = self.config["talar"]
-            if self.method == "talar":
+            if self.method in ("talar", "end-to-end"):
                 spec = TaskLanguageSpec(**talar["spec"])
             elif self.method == "handcrafted":
                 spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=self.cache.num_goals)
@@ -177,7 +183,9 @@ class Agent:
             )
             translate = make_translate(translator_config, spec)
             stage = self.folder.parent / TRANSLATOR_STAGES[self.method] / "params.msgpack"
-            translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], load_tree(stage))
+            translator = load_tree(stage)
+            translator = translator.get("translator", translator)  # end-to-end: the joint fit's translator
+            translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], translator)
             return jax.jit(lambda features: translate(translator, features))
         if self.method in ENCODING_LAYER_METHODS:
             layer = NLEncodingLayer(TaskLanguageSpec(**self.config["talar"]["spec"]).size, "binary" in self.method)
@@ -284,13 +292,23 @@ class Agent:
         )
         return Episode(obs, actions, qpos, valid, bool(success), int(valid.sum()), goal)
 
+    def episodes(
+        self, codes: np.ndarray, goals: np.ndarray, rng: jax.Array, deterministic: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One episode per (code, goal) row, all vmapped in one call: ``(observations (E, T, obs), valid (E, T),
+        success (E,))`` (``Episode``'s fields, batched; steps after an episode ended are padding)."""
+        keys = jax.random.split(rng, len(goals))
+        run = jax.vmap(lambda k, c, g: self._episode_fn(k, c, g, deterministic))
+        obs, _, _, valid, success = jax.device_get(
+            jax.jit(run)(keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32))
+        )
+        return np.asarray(obs), np.asarray(valid), np.asarray(success)
+
     def success_rate(
         self, codes: np.ndarray, goals: np.ndarray, rng: jax.Array, deterministic: bool = False
     ) -> np.ndarray:
         """(E,) success of one episode per (code, goal) row, all episodes vmapped in one call."""
-        keys = jax.random.split(rng, len(goals))
-        run = jax.vmap(lambda k, c, g: self._episode_fn(k, c, g, deterministic)[-1])
-        return np.asarray(jax.jit(run)(keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32)))
+        return self.episodes(codes, goals, rng, deterministic)[-1]
 
 
 def load(run_dir: str | Path, seed: int = 0, physics: str | None = None) -> Agent:

@@ -47,6 +47,11 @@ def test_agent_reads_sentences_as_the_run_did_and_acts(agent, clevr_run):
     assert episode.qpos.shape == (length + 1, agent.env.mj_model.nq)
     assert 1 <= episode.length <= length and episode.goal == goal
     assert episode.valid[: episode.length].all() and not episode.valid[episode.length :].any()
+    # Batched episodes: one per (code, goal) row, the same successes as success_rate with the same key.
+    codes, goals = agent.translate(sentences[:2]), np.array([goal, goal])
+    observations, valid, success = agent.episodes(codes, goals, jax.random.key(2))
+    assert observations.shape == (2, length, agent.env.observation_size) and valid.shape == (2, length)
+    np.testing.assert_array_equal(success, agent.success_rate(codes, goals, jax.random.key(2)))
 
 
 def test_instruct_prints_the_code_and_success_and_writes_a_video(clevr_run, tmp_path, capsys):
@@ -174,3 +179,20 @@ def test_nearest_training_goal_accuracy_counts_ties_fractionally():
     codes = np.array([[0.0, 0], [1, 1], [0.1, 0], [0.5, 0.5], [5, 5]])
     # test rows: nearest to goal 0 (right), a tie between goals 0 and 1 (half right), nearest to goal 1 (wrong: goal 2)
     assert tsne.nearest_training_goal_accuracy(codes, goals, is_train) == pytest.approx((1 + 0.5 + 0) / 3)
+
+
+def test_kitchen_side_tasks_counts_other_sub_tasks_done_during_the_episode():
+    from envs.kitchen.tasks import OBSERVATION_SIZE, TASK_GOAL, TASK_MASK
+    from scripts.kitchen_side_tasks import side_tasks
+
+    def satisfy(obs, task):  # put the sub-task's joints at its goal
+        joints = np.flatnonzero(TASK_MASK[task])
+        obs[..., joints] = TASK_GOAL[task, joints]
+
+    observations = np.full((2, 3, OBSERVATION_SIZE + 4), 50.0, np.float32)  # every sub-task far from its goal
+    satisfy(observations[0, 1:], 0)  # episode 0 (goal kettle): the microwave on the way, then the kettle
+    satisfy(observations[0, 2:], 1)
+    satisfy(observations[1], 3)  # episode 1 (goal microwave): the slide cabinet already done at reset,
+    satisfy(observations[1, 2:], 2)  # the light switch only after the episode ended
+    valid = np.array([[True, True, True], [True, True, False]])
+    np.testing.assert_array_equal(side_tasks(observations, valid, np.array([1, 0])), [1, 0])
