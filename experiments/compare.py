@@ -24,6 +24,7 @@ from experiments.pipeline import (
     check_inputs,
     default_config,
     finished_summary,
+    ifp_result,
     learning_curve,
     run,
     run_name,
@@ -32,7 +33,6 @@ from experiments.pipeline import (
 from experiments.recipes import recipe_names
 from talar_jax.language import build_cache
 from talar_jax.report import plot_learning_curves, results_table
-from talar_jax.stages import StageResult
 
 PAPER_MARGIN: dict[str, float] = {"clevr": 13.4, "kitchen": 63.2}
 """TALAR's lead over the best baseline in the paper's Fig. 4, points of success."""
@@ -121,8 +121,7 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     shown = [m for m in METHODS if m in args.methods or m in earlier]
     for method in shown:
         config = dataclasses.replace(base, method=method)
-        ifp = StageResult(base.out / run_name(config) / "ifp", "", {}, 0.0, True)
-        curve = learning_curve(ifp)
+        curve = learning_curve(ifp_result(config))
         curves[METHOD_LABELS[method]] = curve
         final[METHOD_LABELS[method]] = {split: rates[:, -1] for split, rates in curve.success.items()}
     title = f"{env} ({seeds} seeds)"

@@ -299,6 +299,11 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
     return run_stage(config.out, f"{run_name(config)}/ifp", key, body, reuse_from=config.reuse_stages)
 
 
+def ifp_result(config: ExperimentConfig) -> StageResult:
+    """The IFP stage of ``config``'s run folder, to read its logs (``learning_curve``) without running it."""
+    return StageResult(config.out / run_name(config) / "ifp", "", {}, 0.0, True)
+
+
 def _eval_rows(ifp: StageResult) -> list[dict[str, Any]]:
     rows = [json.loads(line) for line in (ifp.path / "ppo" / "metrics.jsonl").read_text().splitlines()]
     return [r for r in rows if "eval/train/success_per_seed" in r]

@@ -49,9 +49,9 @@ from experiments.pipeline import (  # noqa: E402
     check_inputs,
     default_config,
     finished_summary,
+    ifp_result,
     learning_curve,
     run,
-    run_name,
     stage_oracle_key,
 )
 from experiments.recipes import recipe_names  # noqa: E402
@@ -59,7 +59,6 @@ from talar_jax.checkpoint import write_json_atomic  # noqa: E402
 from talar_jax.language import build_cache  # noqa: E402
 from talar_jax.provenance import provenance  # noqa: E402
 from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves  # noqa: E402
-from talar_jax.stages import StageResult  # noqa: E402
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
@@ -184,10 +183,10 @@ SPEED_THRESHOLD = 0.8
 
 def setting_curve(config: ExperimentConfig) -> LearningCurve | None:
     """A setting's learning curve from its IFP's ``metrics.jsonl`` (also in a restored record); None without one."""
-    ifp = config.out / run_name(config) / "ifp"
-    if not (ifp / "ppo" / "metrics.jsonl").is_file():
+    ifp = ifp_result(config)
+    if not (ifp.path / "ppo" / "metrics.jsonl").is_file():
         return None
-    curve = learning_curve(StageResult(ifp, "", {}, 0.0, True))
+    curve = learning_curve(ifp)
     return curve if curve.env_steps.size else None
 
 

@@ -18,7 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from talar_jax.report import LANGUAGE_RECORD, REPORT_FILES
+from talar_jax.report import RECORD_FILES
 
 
 def main() -> None:
@@ -35,7 +35,7 @@ def main() -> None:
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip())
     args.dest.mkdir(parents=True, exist_ok=True)
-    for name in (*REPORT_FILES, LANGUAGE_RECORD):
+    for name in RECORD_FILES:
         if (folder / name).is_file():
             shutil.copy(folder / name, args.dest / name)
     for marker in sorted(run_root.glob("**/stage.json")):

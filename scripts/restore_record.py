@@ -18,7 +18,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from talar_jax.report import LANGUAGE_RECORD, REPORT_FILES
+from talar_jax.report import RECORD_FILES
 
 MARKER = "RESTORED_FROM_RECORD"
 
@@ -36,7 +36,7 @@ def restore(record: Path, dest: Path) -> list[str]:
         raise ValueError(f"{dest} holds a run; restore into an empty folder")
     (dest / "ifp" / "ppo").mkdir(parents=True, exist_ok=True)
     written = []
-    for name in (*REPORT_FILES, LANGUAGE_RECORD):
+    for name in RECORD_FILES:
         if (record / name).is_file():
             shutil.copy(record / name, dest / name)
             written.append(name)

@@ -37,7 +37,6 @@ from talar_jax.report import LANGUAGE_RECORD
 from talar_jax.talar import TalarConfig, make_translate
 from talar_jax.task_language import TaskLanguageSpec
 
-"""File of a method folder naming the encoder a run trained with (written by the experiment pipeline)."""
 TRANSLATOR_STAGES = {
     "talar": "talar/translator",
     "handcrafted": "handcrafted/translator",
@@ -298,9 +297,13 @@ class Agent:
         """One episode per (code, goal) row, all vmapped in one call: ``(observations (E, T, obs), valid (E, T),
         success (E,))`` (``Episode``'s fields, batched; steps after an episode ended are padding)."""
         keys = jax.random.split(rng, len(goals))
-        run = jax.vmap(lambda k, c, g: self._episode_fn(k, c, g, deterministic))
-        obs, _, _, valid, success = jax.device_get(
-            jax.jit(run)(keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32))
+
+        def episode(key, code, goal):  # the outputs returned, not the actions and physics positions
+            obs, _, _, valid, success = self._episode_fn(key, code, goal, deterministic)
+            return obs, valid, success
+
+        obs, valid, success = jax.device_get(
+            jax.jit(jax.vmap(episode))(keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32))
         )
         return np.asarray(obs), np.asarray(valid), np.asarray(success)
 
