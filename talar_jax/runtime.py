@@ -9,7 +9,9 @@
 - MuJoCo's offscreen rendering through EGL when no display is available (``MUJOCO_GL=egl`` unless set; rendering
   needs it set before MuJoCo is imported);
 - XLA's C++ log at errors only (``TF_CPP_MIN_LOG_LEVEL=2`` unless set): loading a cached program otherwise prints a
-  version-compatibility warning on every run.
+  version-compatibility warning on every run. On AVX-512 hosts jaxlib 0.9 still logs, at error level, that a cached
+  program's ``+prefer-no-gather`` / ``+prefer-no-scatter`` are not host features (jax-ml/jax#38445: LLVM tuning
+  hints XLA adds on such hosts); the program loads and runs, and hiding every error-level log would hide real ones.
 """
 
 from __future__ import annotations
