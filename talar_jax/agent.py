@@ -183,7 +183,8 @@ class Agent:
             translate = make_translate(translator_config, spec)
             stage = self.folder.parent / TRANSLATOR_STAGES[self.method] / "params.msgpack"
             translator = load_tree(stage)
-            translator = translator.get("translator", translator)  # end-to-end: the joint fit's translator
+            if self.method == "end-to-end":  # the joint fit stores generator, receiver and translator together
+                translator = translator["translator"]
             translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], translator)
             return jax.jit(lambda features: translate(translator, features))
         if self.method in ENCODING_LAYER_METHODS:
