@@ -140,6 +140,13 @@ class EncodingLayerConditioner(Conditioner):
         binary: straight-through Bernoulli bits (BERT-binary) or a continuous layer (BERT-continuous).
         aligned: None, or (task-language spec, hidden layers) of an ``AlignedEncodingLayer`` (``size`` must then be
             the spec's).
+
+    The aligned layer (N_pn + N_a MLPs) costs several times the policy per input row, so with ``aligned`` rows are
+    gathered from an encoding of the instruction table: every instruction once per rollout or evaluation
+    (``freeze``), the training split's distinct instructions once per loss minibatch (``apply_batch`` on unfrozen
+    parameters, the same gradient as per row; other instructions read zeros there, as the loss sees training
+    instructions only). The plain layer, one matmul, stays per row, which keeps recorded BERT-binary /
+    -continuous runs reproducible bit for bit.
     """
 
     def __init__(
@@ -160,6 +167,11 @@ class EncodingLayerConditioner(Conditioner):
             self.layer = AlignedEncodingLayer(spec, tuple(hidden), binary=binary)
         self.size = size
         self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.features))
+        rows = np.arange(len(self.features))
+        if "train" in goal_sentences_by_split:
+            lookup, counts = (np.asarray(a) for a in goal_sentences_by_split["train"])
+            rows = np.unique(lookup[np.arange(lookup.shape[1])[None, :] < counts[:, None]])
+        self.loss_rows = jnp.asarray(rows, jnp.int32)
 
     def init(self, rng: jax.Array) -> Any:
         return self.layer.init(rng, self.features[:1])
@@ -167,9 +179,32 @@ class EncodingLayerConditioner(Conditioner):
     def sample(self, rng: jax.Array, goal: jax.Array, split: str) -> jax.Array:
         return self.sampler.sample(rng, goal, split)
 
+    @property
+    def encodes_table(self) -> bool:
+        """Whether rows are gathered from the whole instruction table's encoding (the aligned layer)."""
+        return isinstance(self.layer, AlignedEncodingLayer)
+
     def apply(self, params: Any, instruction: jax.Array) -> jax.Array:
+        if self.encodes_table and "codes" in params:
+            return self.apply_batch(params, jnp.asarray(instruction)[None])[0]
         out = self.layer.apply(params, self.features[jnp.maximum(instruction, 0)], None)
         return jnp.where(instruction >= 0, out, 0.0)
+
+    def freeze(self, params: Any) -> Any:
+        if not self.encodes_table:
+            return params
+        return {"codes": jax.lax.stop_gradient(self.layer.apply(params, self.features, None))}
+
+    def apply_batch(self, params: Any, instructions: jax.Array) -> jax.Array:
+        if not self.encodes_table:
+            return super().apply_batch(params, instructions)
+        if "codes" in params:  # frozen: every instruction's code
+            codes = params["codes"]
+        else:  # the loss: the training instructions' codes, one pass over them
+            codes = jnp.zeros((len(self.features), self.size), jnp.float32)
+            codes = codes.at[self.loss_rows].set(self.layer.apply(params, self.features[self.loss_rows], None))
+        out = codes[jnp.maximum(instructions, 0)]
+        return jnp.where((instructions >= 0)[..., None], out, 0.0)
 
 
 class FinetunedBertConditioner(Conditioner):

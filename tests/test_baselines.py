@@ -68,11 +68,46 @@ def test_aligned_encoding_is_the_task_language_generator_on_the_sentence():
     conditioner = EncodingLayerConditioner(
         x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size, True, aligned=(spec, (16, 16))
     )
-    assert isinstance(conditioner.layer, AlignedEncodingLayer)
+    assert isinstance(conditioner.layer, AlignedEncodingLayer) and conditioner.encodes_table
     with pytest.raises(ValueError, match="differs"):
         EncodingLayerConditioner(
             x, {"train": (np.zeros((2, 1)), np.ones(2))}, spec.size + 1, True, aligned=(spec, (16, 16))
         )
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_aligned_conditioner_gathers_rows_of_the_table_encoding_with_the_per_row_values_and_gradient(binary):
+    """The aligned conditioner gathers rows of a table encoding (every instruction per rollout, the training ones
+    per loss minibatch): the same vectors, zeros for -1 and the same gradient as encoding each row."""
+    spec = TaskLanguageSpec(num_predicates=2, num_arguments=2, arg_size=3)
+    features = jax.random.normal(jax.random.key(0), (8, 10))
+    lookups = {"train": (np.array([[0, 3], [6, -1]]), np.array([2, 1])), "test": (np.array([[1], [7]]), np.ones(2))}
+    conditioner = EncodingLayerConditioner(features, lookups, spec.size, binary, aligned=(spec, (16,)))
+    np.testing.assert_array_equal(conditioner.loss_rows, [0, 3, 6])
+    params = conditioner.init(jax.random.key(1))
+    instructions = jnp.array([3, -1, 0, 3, 6])  # training instructions, as the loss reads
+
+    def per_row(p):
+        out = conditioner.layer.apply(p, features[jnp.maximum(instructions, 0)], None)
+        return jnp.where((instructions >= 0)[:, None], out, 0.0)
+
+    reference = per_row(params)
+    assert np.abs(np.asarray(reference)).sum() > 0 and np.all(np.asarray(reference)[1] == 0)
+    np.testing.assert_allclose(conditioner.apply_batch(params, instructions), reference, atol=1e-6)
+    frozen = conditioner.freeze(params)
+    assert set(frozen) == {"codes"} and frozen["codes"].shape == (8, spec.size)
+    np.testing.assert_allclose(conditioner.apply_batch(frozen, instructions), reference, atol=1e-6)
+    np.testing.assert_allclose(conditioner.apply(frozen, jnp.int32(6)), reference[4], atol=1e-6)
+    np.testing.assert_allclose(conditioner.apply(params, jnp.int32(-1)), np.zeros(spec.size))
+    test_code = conditioner.layer.apply(params, features[7], None)  # acting on a test instruction: its own code
+    np.testing.assert_allclose(conditioner.apply(frozen, jnp.int32(7)), test_code, atol=1e-6)
+    np.testing.assert_allclose(conditioner.apply(params, jnp.int32(7)), test_code, atol=1e-6)
+    weights = jax.random.normal(jax.random.key(2), reference.shape)
+    grad = jax.grad(lambda p: jnp.sum(conditioner.apply_batch(p, instructions) * weights))(params)
+    expected = jax.grad(lambda p: jnp.sum(per_row(p) * weights))(params)
+    for g, e in zip(jax.tree.leaves(grad), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(g, e, rtol=1e-5, atol=1e-6)
+    assert sum(float(jnp.abs(g).sum()) for g in jax.tree.leaves(grad)) > 0
 
 
 def test_gla_autoencoder_learns_to_reconstruct_goal_dependent_changes():
