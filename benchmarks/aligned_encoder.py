@@ -1,0 +1,123 @@
+"""What the Aligned BERT baselines' encoder costs inside policy training (paper Fig. 12, Appendix E.3).
+
+``python -m benchmarks.aligned_encoder [--env kitchen]``
+
+The Aligned baselines run the TL generator's N_pn + N_a MLPs on the cached sentence embedding, and the policy's loss
+trains them with the policy. One PPO update is timed side by side in one run for: BERT-binary (one dense layer per
+row), the aligned BERT-binary encoding every row it reads (rollout steps and minibatch rows), and the aligned
+BERT-binary as ``EncodingLayerConditioner`` runs it, gathering rows of a table encoding (every instruction once per
+rollout, the training instructions once per minibatch). Same method and columns as ``benchmarks.finetuned_bert``:
+one epoch and two epochs of 128-row minibatches separate the minibatch steps' cost from the rollout's, and the last
+column projects one seed's IFP at the recipe's budget on this machine. Prints a table and writes
+``benchmarks/results/aligned_encoder.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import envs
+from benchmarks.finetuned_bert import lookups, time_update
+from benchmarks.machine import machine_info
+from experiments.pipeline import default_config
+from talar_jax.baselines import EncodingLayerConditioner
+from talar_jax.language import build_cache, load_encoder
+from talar_jax.ppo import PPOConfig, derive
+
+RESULTS = Path(__file__).parent / "results" / "aligned_encoder.json"
+
+
+class PerRowAlignedConditioner(EncodingLayerConditioner):
+    """The aligned encoding applied to every row it reads (what the table encoding replaces)."""
+
+    encodes_table = False
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
+    parser.add_argument("--num-envs", type=int, default=16)
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args(argv)
+
+    experiment = default_config(args.env)
+    talar = experiment.talar
+    env = envs.make(args.env, physics="c", **(experiment.env_options or {}))
+    cache = build_cache(args.env, load_encoder(None), progress=False)
+    features = cache.sentence_features(experiment.sentence_readout)
+    splits = lookups(args.env)
+    architecture = (talar.spec, talar.generator_hidden)
+    conditioners = {
+        "bert-binary (dense layer per row)": EncodingLayerConditioner(features, splits, talar.spec.size, True),
+        "aligned-bert-binary (per row)": PerRowAlignedConditioner(
+            features, splits, talar.spec.size, True, architecture
+        ),
+        "aligned-bert-binary (table, as run)": EncodingLayerConditioner(
+            features, splits, talar.spec.size, True, architecture
+        ),
+    }
+    config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
+    measured_minibatches = derive(config).num_minibatches
+    recipe = experiment.ifp
+    recipe_sizes = derive(recipe)
+    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
+    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
+    rollout_scale = recipe_sizes.env_steps_per_update / derive(config).env_steps_per_update
+    two_epochs = dataclasses.replace(config, num_epochs=2)
+
+    rows = []
+    for label, conditioner in conditioners.items():
+        print(f"timing {label} ...", flush=True)
+        timing = time_update(env, conditioner, config, args.repeats)
+        longer = time_update(env, conditioner, two_epochs, args.repeats)["update_s"]
+        per_minibatch = max(longer - timing["update_s"], 0.0) / measured_minibatches
+        rollout = max(timing["update_s"] - per_minibatch * measured_minibatches, 0.0)
+        projected = recipe_updates * rollout * rollout_scale + recipe_minibatch_steps * per_minibatch
+        rows.append(
+            {
+                "conditioner": label,
+                **timing,
+                "two_epoch_update_s": longer,
+                "minibatch_step_s": per_minibatch,
+                "rollout_s": rollout,
+                "projected_recipe_ifp_h_per_seed": projected / 3600,
+            }
+        )
+    base = rows[0]["update_s"]
+    print(
+        f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
+        f"of 128), {len(features)} instructions, sentence readout {experiment.sentence_readout!r} "
+        f"({features.shape[1]} features), generator {talar.spec.num_predicates} predicate + "
+        f"{talar.spec.num_arguments} argument networks of {tuple(talar.generator_hidden)}\n"
+    )
+    print(
+        "| conditioner | update (s) | x BERT-binary | minibatch step (s) | rollout (s) | projected IFP per seed (h) |"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    for row in rows:
+        row["ratio_to_bert_binary"] = row["update_s"] / base
+        print(
+            f"| {row['conditioner']} | {row['update_s']:.2f} | {row['ratio_to_bert_binary']:.1f} | "
+            f"{row['minibatch_step_s']:.4f} | {row['rollout_s']:.2f} | {row['projected_recipe_ifp_h_per_seed']:.2f} |"
+        )
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "machine": machine_info(),
+        "env": args.env,
+        "num_envs": args.num_envs,
+        "instructions": int(len(features)),
+        "features": int(features.shape[1]),
+        "recipe_ifp_env_steps": recipe.total_env_steps,
+        "recipe_minibatch_steps_per_seed": recipe_minibatch_steps,
+        "rows": rows,
+    }
+    RESULTS.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"\nwrote {RESULTS}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
