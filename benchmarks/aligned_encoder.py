@@ -15,12 +15,11 @@ column projects one seed's IFP at the recipe's budget on this machine. Prints a 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
 import envs
-from benchmarks.finetuned_bert import lookups, time_update
+from benchmarks.finetuned_bert import lookups, time_conditioners
 from benchmarks.machine import machine_info
 from experiments.pipeline import default_config
 from talar_jax.baselines import EncodingLayerConditioner
@@ -63,29 +62,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     measured_minibatches = derive(config).num_minibatches
     recipe = experiment.ifp
     recipe_sizes = derive(recipe)
-    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
-    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
-    rollout_scale = recipe_sizes.env_steps_per_update / derive(config).env_steps_per_update
-    two_epochs = dataclasses.replace(config, num_epochs=2)
-
-    rows = []
-    for label, conditioner in conditioners.items():
-        print(f"timing {label} ...", flush=True)
-        timing = time_update(env, conditioner, config, args.repeats)
-        longer = time_update(env, conditioner, two_epochs, args.repeats)["update_s"]
-        per_minibatch = max(longer - timing["update_s"], 0.0) / measured_minibatches
-        rollout = max(timing["update_s"] - per_minibatch * measured_minibatches, 0.0)
-        projected = recipe_updates * rollout * rollout_scale + recipe_minibatch_steps * per_minibatch
-        rows.append(
-            {
-                "conditioner": label,
-                **timing,
-                "two_epoch_update_s": longer,
-                "minibatch_step_s": per_minibatch,
-                "rollout_s": rollout,
-                "projected_recipe_ifp_h_per_seed": projected / 3600,
-            }
-        )
+    recipe_minibatch_steps = (
+        recipe.total_env_steps // recipe_sizes.env_steps_per_update * recipe.num_epochs * recipe_sizes.num_minibatches
+    )
+    rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
     base = rows[0]["update_s"]
     print(
         f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "

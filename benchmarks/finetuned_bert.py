@@ -64,6 +64,36 @@ def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
     return {"update_s": float(np.median(seconds)), "encode_all_s": time.perf_counter() - start, "compile_s": compile_s}
 
 
+def time_conditioners(env, conditioners: dict, config: PPOConfig, recipe: PPOConfig, repeats: int) -> list[dict]:
+    """One row per labelled conditioner: its update timed with one and two epochs of ``config``; the difference is
+    the minibatch steps' cost, the rest the rollout's, and the projection is one seed's IFP at ``recipe``'s budget."""
+    measured_minibatches = derive(config).num_minibatches
+    recipe_sizes = derive(recipe)
+    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
+    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
+    rollout_scale = recipe_sizes.env_steps_per_update / derive(config).env_steps_per_update
+    two_epochs = dataclasses.replace(config, num_epochs=2)
+    rows = []
+    for label, conditioner in conditioners.items():
+        print(f"timing {label} ...", flush=True)
+        timing = time_update(env, conditioner, config, repeats)
+        longer = time_update(env, conditioner, two_epochs, repeats)["update_s"]
+        per_minibatch = max(longer - timing["update_s"], 0.0) / measured_minibatches
+        rollout = max(timing["update_s"] - per_minibatch * measured_minibatches, 0.0)
+        projected = recipe_updates * rollout * rollout_scale + recipe_minibatch_steps * per_minibatch
+        rows.append(
+            {
+                "conditioner": label,
+                **timing,
+                "two_epoch_update_s": longer,
+                "minibatch_step_s": per_minibatch,
+                "rollout_s": rollout,
+                "projected_recipe_ifp_h_per_seed": projected / 3600,
+            }
+        )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
@@ -94,27 +124,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         conditioners[f"finetuned-bert-binary ({label})"] = FinetunedBertConditioner(
             encoder.config, encoder.params, cache.token_ids, mask, splits, size, True, first, train_rows
         )
-    two_epochs = dataclasses.replace(config, num_epochs=2)
-    rollout_scale = recipe_sizes.env_steps_per_update / derive(config).env_steps_per_update
-    rows = []
-    for label, conditioner in conditioners.items():
-        print(f"timing {label} ...", flush=True)
-        timing = time_update(env, conditioner, config, args.repeats)
-        longer = time_update(env, conditioner, two_epochs, args.repeats)["update_s"]
-        # the second epoch's extra time is the minibatch steps; the rest of an update is the rollout (and GAE)
-        per_minibatch = max(longer - timing["update_s"], 0.0) / measured_minibatches
-        rollout = max(timing["update_s"] - per_minibatch * measured_minibatches, 0.0)
-        projected = recipe_updates * rollout * rollout_scale + recipe_minibatch_steps * per_minibatch
-        rows.append(
-            {
-                "conditioner": label,
-                **timing,
-                "two_epoch_update_s": longer,
-                "minibatch_step_s": per_minibatch,
-                "rollout_s": rollout,
-                "projected_recipe_ifp_h_per_seed": projected / 3600,
-            }
-        )
+    rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
     base = rows[0]["update_s"]
     print(
         f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
