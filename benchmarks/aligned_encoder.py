@@ -15,12 +15,10 @@ column projects one seed's IFP at the recipe's budget on this machine. Prints a 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import envs
-from benchmarks.finetuned_bert import lookups, time_conditioners
-from benchmarks.machine import machine_info
+from benchmarks.finetuned_bert import lookups, report, time_conditioners
 from experiments.pipeline import default_config
 from talar_jax.baselines import EncodingLayerConditioner
 from talar_jax.language import build_cache, load_encoder
@@ -66,36 +64,28 @@ def main(argv: list[str] | None = None) -> list[dict]:
         recipe.total_env_steps // recipe_sizes.env_steps_per_update * recipe.num_epochs * recipe_sizes.num_minibatches
     )
     rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
-    base = rows[0]["update_s"]
     print(
         f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
         f"of 128), {len(features)} instructions, sentence readout {experiment.sentence_readout!r} "
         f"({features.shape[1]} features), generator {talar.spec.num_predicates} predicate + "
         f"{talar.spec.num_arguments} argument networks of {tuple(talar.generator_hidden)}\n"
     )
-    print(
-        "| conditioner | update (s) | x BERT-binary | minibatch step (s) | rollout (s) | projected IFP per seed (h) |"
-    )
-    print("|---|---:|---:|---:|---:|---:|")
-    for row in rows:
-        row["ratio_to_bert_binary"] = row["update_s"] / base
-        print(
-            f"| {row['conditioner']} | {row['update_s']:.2f} | {row['ratio_to_bert_binary']:.1f} | "
-            f"{row['minibatch_step_s']:.4f} | {row['rollout_s']:.2f} | {row['projected_recipe_ifp_h_per_seed']:.2f} |"
-        )
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    columns = [
+        ("update (s)", "update_s", ".2f"),
+        ("x BERT-binary", "ratio_to_bert_binary", ".1f"),
+        ("minibatch step (s)", "minibatch_step_s", ".4f"),
+        ("rollout (s)", "rollout_s", ".2f"),
+        ("projected IFP per seed (h)", "projected_recipe_ifp_h_per_seed", ".2f"),
+    ]
     payload = {
-        "machine": machine_info(),
         "env": args.env,
         "num_envs": args.num_envs,
         "instructions": int(len(features)),
         "features": int(features.shape[1]),
         "recipe_ifp_env_steps": recipe.total_env_steps,
         "recipe_minibatch_steps_per_seed": recipe_minibatch_steps,
-        "rows": rows,
     }
-    RESULTS.write_text(json.dumps(payload, indent=2) + "\n")
-    print(f"\nwrote {RESULTS}")
+    report(rows, "ratio_to_bert_binary", columns, RESULTS, payload)
     return rows
 
 

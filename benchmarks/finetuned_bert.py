@@ -94,6 +94,19 @@ def time_conditioners(env, conditioners: dict, config: PPOConfig, recipe: PPOCon
     return rows
 
 
+def report(rows: list[dict], ratio: str, columns: list[tuple[str, str, str]], path: Path, payload: dict) -> None:
+    """Adds ``ratio`` (each row's update over the first row's) to the rows, prints them as a markdown table of
+    (header, key, format) columns and writes the machine, ``payload`` and the rows as JSON to ``path``."""
+    print("| conditioner | " + " | ".join(header for header, _, _ in columns) + " |")
+    print("|---|" + "---:|" * len(columns))
+    for row in rows:
+        row[ratio] = row["update_s"] / rows[0]["update_s"]
+        print(f"| {row['conditioner']} | " + " | ".join(format(row[key], fmt) for _, key, fmt in columns) + " |")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"machine": machine_info(), **payload, "rows": rows}, indent=2) + "\n")
+    print(f"\nwrote {path}")
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
@@ -125,36 +138,27 @@ def main(argv: list[str] | None = None) -> list[dict]:
             encoder.config, encoder.params, cache.token_ids, mask, splits, size, True, first, train_rows
         )
     rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
-    base = rows[0]["update_s"]
     print(
         f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
         f"of 128), {len(train_rows)} training instructions; projection: {recipe.total_env_steps:,} env steps = "
         f"{recipe_minibatch_steps:,} minibatch steps per seed\n"
     )
-    print(
-        "| conditioner | update (s) | x frozen | minibatch step (s) | rollout (s) | encode every instruction (s) "
-        "| projected IFP per seed (h) |"
-    )
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for row in rows:
-        row["ratio_to_frozen"] = row["update_s"] / base
-        print(
-            f"| {row['conditioner']} | {row['update_s']:.2f} | {row['ratio_to_frozen']:.1f} | "
-            f"{row['minibatch_step_s']:.3f} | {row['rollout_s']:.2f} | {row['encode_all_s']:.3f} | "
-            f"{row['projected_recipe_ifp_h_per_seed']:.1f} |"
-        )
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    columns = [
+        ("update (s)", "update_s", ".2f"),
+        ("x frozen", "ratio_to_frozen", ".1f"),
+        ("minibatch step (s)", "minibatch_step_s", ".3f"),
+        ("rollout (s)", "rollout_s", ".2f"),
+        ("encode every instruction (s)", "encode_all_s", ".3f"),
+        ("projected IFP per seed (h)", "projected_recipe_ifp_h_per_seed", ".1f"),
+    ]
     payload = {
-        "machine": machine_info(),
         "env": args.env,
         "num_envs": args.num_envs,
         "training_instructions": int(len(train_rows)),
         "recipe_ifp_env_steps": recipe.total_env_steps,
         "recipe_minibatch_steps_per_seed": recipe_minibatch_steps,
-        "rows": rows,
     }
-    RESULTS.write_text(json.dumps(payload, indent=2) + "\n")
-    print(f"\nwrote {RESULTS}")
+    report(rows, "ratio_to_frozen", columns, RESULTS, payload)
     return rows
 
 
