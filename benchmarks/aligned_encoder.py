@@ -18,7 +18,7 @@ import argparse
 from pathlib import Path
 
 import envs
-from benchmarks.finetuned_bert import lookups, report, time_conditioners
+from benchmarks.finetuned_bert import lookups, recipe_steps, report, time_conditioners
 from experiments.pipeline import default_config
 from talar_jax.baselines import EncodingLayerConditioner
 from talar_jax.language import build_cache, load_encoder
@@ -59,10 +59,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
     measured_minibatches = derive(config).num_minibatches
     recipe = experiment.ifp
-    recipe_sizes = derive(recipe)
-    recipe_minibatch_steps = (
-        recipe.total_env_steps // recipe_sizes.env_steps_per_update * recipe.num_epochs * recipe_sizes.num_minibatches
-    )
+    _, recipe_minibatch_steps = recipe_steps(recipe)
     rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
     print(
         f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "

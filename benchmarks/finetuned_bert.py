@@ -64,14 +64,19 @@ def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
     return {"update_s": float(np.median(seconds)), "encode_all_s": time.perf_counter() - start, "compile_s": compile_s}
 
 
+def recipe_steps(recipe: PPOConfig) -> tuple[int, int]:
+    """(updates, minibatch steps) of one seed's IFP at ``recipe``'s budget."""
+    sizes = derive(recipe)
+    updates = recipe.total_env_steps // sizes.env_steps_per_update
+    return updates, updates * recipe.num_epochs * sizes.num_minibatches
+
+
 def time_conditioners(env, conditioners: dict, config: PPOConfig, recipe: PPOConfig, repeats: int) -> list[dict]:
     """One row per labelled conditioner: its update timed with one and two epochs of ``config``; the difference is
     the minibatch steps' cost, the rest the rollout's, and the projection is one seed's IFP at ``recipe``'s budget."""
     measured_minibatches = derive(config).num_minibatches
-    recipe_sizes = derive(recipe)
-    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
-    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
-    rollout_scale = recipe_sizes.env_steps_per_update / derive(config).env_steps_per_update
+    recipe_updates, recipe_minibatch_steps = recipe_steps(recipe)
+    rollout_scale = derive(recipe).env_steps_per_update / derive(config).env_steps_per_update
     two_epochs = dataclasses.replace(config, num_epochs=2)
     rows = []
     for label, conditioner in conditioners.items():
@@ -126,9 +131,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
     measured_minibatches = derive(config).num_minibatches
     recipe = experiment.ifp
-    recipe_sizes = derive(recipe)
-    recipe_updates = recipe.total_env_steps // recipe_sizes.env_steps_per_update
-    recipe_minibatch_steps = recipe_updates * recipe.num_epochs * recipe_sizes.num_minibatches
+    _, recipe_minibatch_steps = recipe_steps(recipe)
 
     frozen = EncodingLayerConditioner(cache.sentence_embeddings, splits, size, True)
     conditioners = {"bert-binary (frozen BERT)": frozen}

@@ -29,7 +29,7 @@ from talar_jax.baselines import (
     one_hot_table,
 )
 from talar_jax.checkpoint import load_tree, save_tree
-from talar_jax.conditioning import Conditioner, InstructionTableConditioner
+from talar_jax.conditioning import Conditioner, InstructionTableConditioner, split_instruction_ids
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import (
     DEVELOPMENT_FILE,
@@ -459,8 +459,7 @@ def _finetuned_setup(ctx: MethodContext, binary: bool) -> MethodSetup:
     encoder = load_encoder(config.encoder)
     mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
     lookups = ctx.lookups()
-    train_lookup, train_counts = lookups["train"]
-    train_rows = train_lookup[np.arange(train_lookup.shape[1])[None, :] < train_counts[:, None]]
+    train_rows = split_instruction_ids(lookups, "train")
     conditioner = FinetunedBertConditioner(
         encoder.config,
         encoder.params,

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from talar_jax.conditioning import Conditioner, InstructionSampler
+from talar_jax.conditioning import Conditioner, InstructionSampler, gather_table_codes, split_instruction_ids
 from talar_jax.language.bert import BertModel, mean_pool
 from talar_jax.networks import (
     OBS_NORMALIZER,
@@ -167,11 +167,8 @@ class EncodingLayerConditioner(Conditioner):
             self.layer = AlignedEncodingLayer(spec, tuple(hidden), binary=binary)
         self.size = size
         self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.features))
-        rows = np.arange(len(self.features))
-        if "train" in goal_sentences_by_split:
-            lookup, counts = (np.asarray(a) for a in goal_sentences_by_split["train"])
-            rows = np.unique(lookup[np.arange(lookup.shape[1])[None, :] < counts[:, None]])
-        self.loss_rows = jnp.asarray(rows, jnp.int32)
+        if self.encodes_table:
+            self.loss_rows = jnp.asarray(split_instruction_ids(goal_sentences_by_split, "train"), jnp.int32)
 
     def init(self, rng: jax.Array) -> Any:
         return self.layer.init(rng, self.features[:1])
@@ -190,21 +187,19 @@ class EncodingLayerConditioner(Conditioner):
         out = self.layer.apply(params, self.features[jnp.maximum(instruction, 0)], None)
         return jnp.where(instruction >= 0, out, 0.0)
 
+    def encode(self, params: Any, rows: jax.Array) -> jax.Array:
+        """(R, size) codes of the instructions ``rows``."""
+        return self.layer.apply(params, self.features[rows], None)
+
     def freeze(self, params: Any) -> Any:
         if not self.encodes_table:
             return params
-        return {"codes": jax.lax.stop_gradient(self.layer.apply(params, self.features, None))}
+        return {"codes": jax.lax.stop_gradient(self.encode(params, jnp.arange(len(self.features))))}
 
     def apply_batch(self, params: Any, instructions: jax.Array) -> jax.Array:
         if not self.encodes_table:
             return super().apply_batch(params, instructions)
-        if "codes" in params:  # frozen: every instruction's code
-            codes = params["codes"]
-        else:  # the loss: the training instructions' codes, one pass over them
-            codes = jnp.zeros((len(self.features), self.size), jnp.float32)
-            codes = codes.at[self.loss_rows].set(self.layer.apply(params, self.features[self.loss_rows], None))
-        out = codes[jnp.maximum(instructions, 0)]
-        return jnp.where((instructions >= 0)[..., None], out, 0.0)
+        return gather_table_codes(params, instructions, self.encode, self.loss_rows, len(self.features))
 
 
 class FinetunedBertConditioner(Conditioner):
@@ -278,13 +273,7 @@ class FinetunedBertConditioner(Conditioner):
         return self.apply_batch(params, jnp.asarray(instruction)[None])[0]
 
     def apply_batch(self, params: Any, instructions: jax.Array) -> jax.Array:
-        if "codes" in params:  # frozen: every instruction's code
-            codes = params["codes"]
-        else:  # the loss: the training instructions' codes, one forward pass (others stay zero)
-            codes = jnp.zeros((len(self.mask), self.size), jnp.float32)
-            codes = codes.at[self.loss_rows].set(self.encode(params, self.loss_rows))
-        out = codes[jnp.maximum(instructions, 0)]
-        return jnp.where((instructions >= 0)[:, None], out, 0.0)
+        return gather_table_codes(params, instructions, self.encode, self.loss_rows, len(self.mask))
 
 
 def make_behaviour_cloning(

@@ -56,6 +56,24 @@ class Conditioner(abc.ABC):
         return params
 
 
+def split_instruction_ids(goal_sentences_by_split: Mapping[str, tuple[Any, Any]], split: str) -> np.ndarray:
+    """Sorted distinct instruction ids of a split's padded (lookup, counts) (``InstructionSampler``'s format)."""
+    lookup, counts = (np.asarray(a) for a in goal_sentences_by_split[check_split(split)])
+    return np.unique(lookup[np.arange(lookup.shape[1])[None, :] < counts[:, None]])
+
+
+def gather_table_codes(params: Any, instructions: jax.Array, encode, loss_rows: jax.Array, num_instructions: int):
+    """(..., size) rows of a table encoding, zeros for -1: ``params`` frozen as ``{"codes": (N, size)}`` (acting),
+    or, in the loss, ``encode(params, loss_rows)`` in one pass with every other row zero."""
+    if "codes" in params:
+        codes = params["codes"]
+    else:
+        encoded = encode(params, loss_rows)
+        codes = jnp.zeros((num_instructions, encoded.shape[-1]), encoded.dtype).at[loss_rows].set(encoded)
+    out = codes[jnp.maximum(instructions, 0)]
+    return jnp.where((instructions >= 0)[..., None], out, 0.0)
+
+
 class GoalOneHotConditioner(Conditioner):
     """The oracle's conditioner: the instruction id is the goal id and the vector is its one-hot."""
 
