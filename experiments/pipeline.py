@@ -391,9 +391,9 @@ def write_report(
 
 def trained_codes(folder: Path, seed: int = 0) -> np.ndarray | None:
     """(S, size) the codes a finished run's ``seed`` gives every instruction of its env (language-cache rows, train
-    then test), as its agent reads them: the translated TL (TALAR), Handcrafted / GLA codes, or the trained encoding
-    layer of BERT-*. None for methods an agent cannot read a sentence with (One-hot: one code per instruction, nothing
-    to project; aligned, end-to-end and fine-tuned runs)."""
+    then test), as its agent reads them: the translated TL (TALAR, end-to-end TALAR), Handcrafted / GLA codes, or the
+    trained encoding layer of BERT-* and aligned BERT-*. None for methods an agent cannot read a sentence with (One-hot:
+    one code per instruction, nothing to project; fine-tuned BERT runs)."""
     from talar_jax.agent import Agent, AgentError
 
     try:

@@ -7,7 +7,8 @@
 - ``language.json``: the encoder's name and weights sha256 and the language cache key the run trained with;
 - ``<method>/translator/params.msgpack`` (TALAR, Handcrafted, GLA): the seed-stacked translators (end-to-end TALAR:
   the ``translator`` entry of ``end-to-end/joint/params.msgpack``);
-- ``ifp/ppo/checkpoints``: the policy (and, for BERT-*, the instruction encoding layer) after the last chunk.
+- ``ifp/ppo/checkpoints``: the policy (and, for BERT-* and aligned BERT-*, the instruction encoding layer) after the
+  last chunk.
 
 Then ``agent.encode(sentences)`` gives the features the translator reads, ``agent.translate(sentences)`` the
 language codes the policy is conditioned on (the TL for TALAR), ``agent.nearest_goal(code)`` the goal whose
@@ -29,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from talar_jax.baselines import NLEncodingLayer
+from talar_jax.baselines import AlignedEncodingLayer, NLEncodingLayer
 from talar_jax.checkpoint import load_tree
 from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features, sentence_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
@@ -43,7 +44,14 @@ TRANSLATOR_STAGES = {
     "gla": "gla/translator",
     "end-to-end": "end-to-end/joint",  # the joint fit's parameters: {"generator", "receiver", "translator"}
 }
-ENCODING_LAYER_METHODS = ("bert-binary", "bert-continuous", "pretrained-bert-binary", "pretrained-bert-continuous")
+ENCODING_LAYER_METHODS = (
+    "bert-binary",
+    "bert-continuous",
+    "pretrained-bert-binary",
+    "pretrained-bert-continuous",
+    "aligned-bert-binary",  # the encoding layer has the TL generator's architecture (AlignedEncodingLayer)
+    "aligned-bert-continuous",
+)
 
 
 class AgentError(ValueError):
@@ -188,7 +196,12 @@ class Agent:
             translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], translator)
             return jax.jit(lambda features: translate(translator, features))
         if self.method in ENCODING_LAYER_METHODS:
-            layer = NLEncodingLayer(TaskLanguageSpec(**self.config["talar"]["spec"]).size, "binary" in self.method)
+            talar, binary = self.config["talar"], "binary" in self.method
+            spec = TaskLanguageSpec(**talar["spec"])
+            if self.method.startswith("aligned-"):
+                layer = AlignedEncodingLayer(spec, tuple(talar["generator_hidden"]), binary=binary)
+            else:
+                layer = NLEncodingLayer(spec.size, binary)
             layer_params = params["conditioner"]
             return jax.jit(lambda features: layer.apply(layer_params, features, None))
         raise AgentError(f"method {self.method!r} has no sentence encoding an agent can use")

@@ -5,12 +5,15 @@ import shutil
 
 import jax
 import numpy as np
+import orbax.checkpoint as ocp
 import pytest
 
 from experiments import generalize, instruct, tsne
 from experiments.pipeline import trained_codes
-from talar_jax.agent import Agent, AgentError, load
-from talar_jax.language import load_user_instructions
+from talar_jax.agent import Agent, AgentError, _latest_policy_params, load
+from talar_jax.baselines import AlignedEncodingLayer
+from talar_jax.language import load_user_instructions, readout_features
+from talar_jax.task_language import TaskLanguageSpec
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +55,39 @@ def test_agent_reads_sentences_as_the_run_did_and_acts(agent, clevr_run):
     observations, valid, success = agent.episodes(codes, goals, jax.random.key(2))
     assert observations.shape == (2, length, agent.env.observation_size) and valid.shape == (2, length)
     np.testing.assert_array_equal(success, agent.success_rate(codes, goals, jax.random.key(2)))
+
+
+def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent, clevr_run, tmp_path):
+    """An aligned BERT-binary run (Fig. 12): the agent rebuilds the TL generator's networks from the run's config and
+    reads the seed's encoding layer from the policy checkpoint. The run here is the TALAR fixture's policy with an
+    aligned layer of known parameters (seed-stacked as training stores them) put in its checkpoint."""
+    out, _ = clevr_run
+    config = json.loads((out / "talar" / "config.json").read_text())
+    folder = tmp_path / "aligned" / "aligned-bert-binary"
+    (folder / "ifp").mkdir(parents=True)
+    (folder / "ifp" / "stage.json").write_text("{}")
+    (folder / "config.json").write_text(json.dumps({**config, "method": "aligned-bert-binary"}))
+    spec = TaskLanguageSpec(**config["talar"]["spec"])
+    layer = AlignedEncodingLayer(spec, tuple(config["talar"]["generator_hidden"]), binary=True)
+    features = readout_features(agent.cache, config["sentence_readout"], agent.encoder)
+    keys = jax.random.split(jax.random.key(3), config["seeds"])
+    stacked = jax.vmap(lambda key: layer.init(key, features[:1]))(keys)
+    policy = {k: v for k, v in _latest_policy_params(out / "talar" / "ifp" / "ppo").items() if k != "conditioner"}
+    with ocp.CheckpointManager((folder / "ifp" / "ppo" / "checkpoints").absolute()) as manager:
+        manager.save(7, args=ocp.args.StandardSave({"params": {**policy, "conditioner": stacked}}))
+        manager.wait_until_finished()
+    aligned = Agent(folder, seed=1)
+    expected = np.asarray(layer.apply(jax.tree.map(lambda x: x[1], stacked), features, None))
+    rows = [0, 5, 719, 720, 1439]
+    np.testing.assert_allclose(aligned.translate([aligned.cache.sentences[r] for r in rows]), expected[rows], atol=1e-6)
+    np.testing.assert_allclose(trained_codes(folder, seed=1), expected, atol=1e-6)
+    # A TL-shaped code: 0/1 predicates and one-hot arguments, as the generator's.
+    assert set(np.unique(expected)) <= {0.0, 1.0}
+    np.testing.assert_array_equal(
+        expected[:, spec.num_predicates :].reshape(-1, spec.num_arguments, spec.arg_size).sum(-1), 1
+    )
+    episode = aligned.rollout(aligned.cache.sentences[0], jax.random.key(1), goal=int(aligned.cache.goal_ids[0]))
+    assert 1 <= episode.length <= aligned.env.episode_length
 
 
 def test_instruct_prints_the_code_and_success_and_writes_a_video(clevr_run, tmp_path, capsys):
