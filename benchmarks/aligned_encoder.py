@@ -18,11 +18,10 @@ import argparse
 from pathlib import Path
 
 import envs
-from benchmarks.finetuned_bert import lookups, recipe_steps, report, time_conditioners
+from benchmarks.finetuned_bert import lookups, measured_update, recipe_steps, report, time_conditioners
 from experiments.pipeline import default_config
 from talar_jax.baselines import EncodingLayerConditioner
 from talar_jax.language import build_cache, load_encoder
-from talar_jax.ppo import PPOConfig, derive
 
 RESULTS = Path(__file__).parent / "results" / "aligned_encoder.json"
 
@@ -56,14 +55,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
             features, splits, talar.spec.size, True, architecture
         ),
     }
-    config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
-    measured_minibatches = derive(config).num_minibatches
+    config, update = measured_update(args.num_envs)
     recipe = experiment.ifp
     _, recipe_minibatch_steps = recipe_steps(recipe)
     rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
     print(
-        f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
-        f"of 128), {len(features)} instructions, sentence readout {experiment.sentence_readout!r} "
+        f"\n{args.env}: {update}, {len(features)} instructions, sentence readout {experiment.sentence_readout!r} "
         f"({features.shape[1]} features), generator {talar.spec.num_predicates} predicate + "
         f"{talar.spec.num_arguments} argument networks of {tuple(talar.generator_hidden)}\n"
     )

@@ -64,6 +64,14 @@ def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
     return {"update_s": float(np.median(seconds)), "encode_all_s": time.perf_counter() - start, "compile_s": compile_s}
 
 
+def measured_update(num_envs: int) -> tuple[PPOConfig, str]:
+    """The PPO update both encoder benchmarks time (``num_envs`` envs x 64 steps, one epoch of minibatches of 128) and
+    the words their printout describes it with."""
+    config = PPOConfig(num_envs=num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
+    minibatches = derive(config).num_minibatches
+    return config, f"one PPO update ({num_envs} envs x 64 steps, 1 epoch of {minibatches} minibatches of 128)"
+
+
 def recipe_steps(recipe: PPOConfig) -> tuple[int, int]:
     """(updates, minibatch steps) of one seed's IFP at ``recipe``'s budget."""
     sizes = derive(recipe)
@@ -128,8 +136,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     size = experiment.talar.spec.size
     mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
     train_rows = np.flatnonzero(cache.is_train)
-    config = PPOConfig(num_envs=args.num_envs, rollout_length=64, num_epochs=1, minibatch_size=128, updates_per_chunk=1)
-    measured_minibatches = derive(config).num_minibatches
+    config, update = measured_update(args.num_envs)
     recipe = experiment.ifp
     _, recipe_minibatch_steps = recipe_steps(recipe)
 
@@ -142,9 +149,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         )
     rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
     print(
-        f"\n{args.env}: one PPO update ({args.num_envs} envs x 64 steps, 1 epoch of {measured_minibatches} minibatches "
-        f"of 128), {len(train_rows)} training instructions; projection: {recipe.total_env_steps:,} env steps = "
-        f"{recipe_minibatch_steps:,} minibatch steps per seed\n"
+        f"\n{args.env}: {update}, {len(train_rows)} training instructions; projection: "
+        f"{recipe.total_env_steps:,} env steps = {recipe_minibatch_steps:,} minibatch steps per seed\n"
     )
     columns = [
         ("update (s)", "update_s", ".2f"),
