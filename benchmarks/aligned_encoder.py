@@ -36,7 +36,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
     parser.add_argument("--num-envs", type=int, default=16)
-    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument(
+        "--extra-epochs", type=int, default=8, help="epochs added to the timed update to measure a minibatch step"
+    )
     args = parser.parse_args(argv)
 
     experiment = default_config(args.env)
@@ -58,7 +61,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     config, update = measured_update(args.num_envs)
     recipe = experiment.ifp
     _, recipe_minibatch_steps = recipe_steps(recipe)
-    rows = time_conditioners(env, conditioners, config, recipe, args.repeats)
+    rows = time_conditioners(env, conditioners, config, recipe, args.repeats, args.extra_epochs)
     print(
         f"\n{args.env}: {update}, {len(features)} instructions, sentence readout {experiment.sentence_readout!r} "
         f"({features.shape[1]} features), generator {talar.spec.num_predicates} predicate + "

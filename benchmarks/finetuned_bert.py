@@ -79,26 +79,29 @@ def recipe_steps(recipe: PPOConfig) -> tuple[int, int]:
     return updates, updates * recipe.num_epochs * sizes.num_minibatches
 
 
-def time_conditioners(env, conditioners: dict, config: PPOConfig, recipe: PPOConfig, repeats: int) -> list[dict]:
-    """One row per labelled conditioner: its update timed with one and two epochs of ``config``; the difference is
-    the minibatch steps' cost, the rest the rollout's, and the projection is one seed's IFP at ``recipe``'s budget."""
+def time_conditioners(
+    env, conditioners: dict, config: PPOConfig, recipe: PPOConfig, repeats: int, extra_epochs: int = 1
+) -> list[dict]:
+    """One row per labelled conditioner: its update timed with one and ``1 + extra_epochs`` epochs of ``config``; the
+    difference is the minibatch steps' cost, the rest the rollout's, and the projection is one seed's IFP at
+    ``recipe``'s budget. Where a minibatch step is cheap, more extra epochs keep the difference above timing noise."""
     measured_minibatches = derive(config).num_minibatches
     recipe_updates, recipe_minibatch_steps = recipe_steps(recipe)
     rollout_scale = derive(recipe).env_steps_per_update / derive(config).env_steps_per_update
-    two_epochs = dataclasses.replace(config, num_epochs=2)
+    more_epochs = dataclasses.replace(config, num_epochs=1 + extra_epochs)
     rows = []
     for label, conditioner in conditioners.items():
         print(f"timing {label} ...", flush=True)
         timing = time_update(env, conditioner, config, repeats)
-        longer = time_update(env, conditioner, two_epochs, repeats)["update_s"]
-        per_minibatch = max(longer - timing["update_s"], 0.0) / measured_minibatches
+        longer = time_update(env, conditioner, more_epochs, repeats)["update_s"]
+        per_minibatch = max(longer - timing["update_s"], 0.0) / (measured_minibatches * extra_epochs)
         rollout = max(timing["update_s"] - per_minibatch * measured_minibatches, 0.0)
         projected = recipe_updates * rollout * rollout_scale + recipe_minibatch_steps * per_minibatch
         rows.append(
             {
                 "conditioner": label,
                 **timing,
-                "two_epoch_update_s": longer,
+                f"{1 + extra_epochs}_epoch_update_s": longer,
                 "minibatch_step_s": per_minibatch,
                 "rollout_s": rollout,
                 "projected_recipe_ifp_h_per_seed": projected / 3600,
