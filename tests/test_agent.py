@@ -232,3 +232,16 @@ def test_kitchen_side_tasks_counts_other_sub_tasks_done_during_the_episode():
     satisfy(observations[1, 2:], 2)  # the light switch only after the episode ended
     valid = np.array([[True, True, True], [True, True, False]])
     np.testing.assert_array_equal(side_tasks(observations, valid, np.array([1, 0])), [1, 0])
+
+
+def test_code_grouping_separates_tight_goal_groups_from_split_ones():
+    from scripts.code_grouping import grouping
+
+    goals = np.array([0, 0, 1, 1, 0, 1])
+    is_train = np.array([True, True, True, True, False, False])
+    tight = np.array([[0.0, 0], [0.1, 0], [5, 5], [5, 5.1], [0, 0.1], [5.1, 5]])
+    split = np.array([[0.0, 0], [5, 5], [0, 5], [5, 0], [0, 0.1], [5.1, 5]])  # each goal's two codes far apart
+    good, bad = grouping(tight, goals, is_train), grouping(split, goals, is_train)
+    assert good["silhouette"] > 0.9 and bad["silhouette"] < 0
+    assert good["within_over_between"] < 0.05 and bad["within_over_between"] > 1
+    assert good["distinct_codes_per_goal"] == [2, 2] and good["test_nearest_goal"] == 1.0

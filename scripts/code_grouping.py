@@ -1,0 +1,68 @@
+"""How tightly a finished run's instruction codes group by goal, per seed (used for Fig. 12's aligned baselines).
+
+    python scripts/code_grouping.py RUN_DIR
+
+For every seed, over the codes of the training instructions (``experiments.pipeline.trained_codes``: the translated
+TL, or the trained encoding layer of BERT-* and aligned BERT-*): the silhouette score by goal (scikit-learn; 1 = each
+goal a tight, separate group), the mean distance between two instructions of one goal over the mean distance between
+instructions of different goals, the number of distinct (rounded) codes per goal, and the share of test instructions
+whose nearest training code names their goal (``experiments.tsne``). Distances make it meaningful for continuous codes
+too, where counting distinct codes is not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from talar_jax import runtime
+
+runtime.configure()
+
+import numpy as np  # noqa: E402
+from scipy.spatial.distance import cdist  # noqa: E402
+from sklearn.metrics import silhouette_score  # noqa: E402
+
+from experiments.pipeline import trained_codes  # noqa: E402
+from experiments.tsne import nearest_training_goal_accuracy  # noqa: E402
+from talar_jax.agent import AgentError, find_method_folder, load  # noqa: E402
+
+
+def grouping(codes: np.ndarray, goals: np.ndarray, is_train: np.ndarray) -> dict:
+    """Silhouette, within / between distance ratio, distinct codes per goal (training rows) and test NN accuracy."""
+    train, train_goals = codes[is_train], goals[is_train]
+    distances = cdist(train, train)
+    same = train_goals[:, None] == train_goals[None, :]
+    within = distances[same & ~np.eye(len(train), dtype=bool)].mean()
+    rounded = np.round(train, 3)
+    return {
+        "silhouette": float(silhouette_score(train, train_goals)),
+        "within_over_between": float(within / distances[~same].mean()),
+        "distinct_codes_per_goal": [len(np.unique(rounded[train_goals == g], axis=0)) for g in np.unique(train_goals)],
+        "test_nearest_goal": nearest_training_goal_accuracy(codes, goals, is_train),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir")
+    args = parser.parse_args(argv)
+    try:
+        folder = find_method_folder(args.run_dir)
+        agent = load(args.run_dir, seed=0)
+    except AgentError as error:
+        sys.exit(f"error: {error}")
+    goals, is_train = agent.cache.goal_ids, agent.cache.is_train
+    for seed in range(int(agent.config["seeds"])):
+        row = grouping(np.asarray(trained_codes(Path(folder), seed), dtype=np.float64), goals, is_train)
+        print(
+            f"seed {seed}: silhouette {row['silhouette']:.2f}, "
+            f"within/between distance {row['within_over_between']:.2f}, "
+            f"distinct codes per goal {row['distinct_codes_per_goal']}, test next to their goal "
+            f"{100 * row['test_nearest_goal']:.1f} %"
+        )
+
+
+if __name__ == "__main__":
+    main()
