@@ -7,9 +7,9 @@ trains them with the policy. One PPO update is timed side by side in one run for
 row), the aligned BERT-binary encoding every row it reads (rollout steps and minibatch rows), and the aligned
 BERT-binary as ``EncodingLayerConditioner`` runs it, gathering rows of a table encoding (every instruction once per
 rollout, the training instructions once per minibatch). Same method and columns as ``benchmarks.finetuned_bert``:
-one epoch and nine (``--extra-epochs``) of 128-row minibatches separate the minibatch steps' cost from the rollout's, and the last
-column projects one seed's IFP at the recipe's budget on this machine. Prints a table and writes
-``benchmarks/results/aligned_encoder.json``.
+one epoch and nine (``--extra-epochs``) of 128-row minibatches separate the minibatch steps' cost from the
+rollout's, and the last column projects one seed's IFP at the recipe's budget on this machine. Prints a table and
+writes ``benchmarks/results/aligned_encoder.json``.
 """
 
 from __future__ import annotations
