@@ -245,3 +245,29 @@ def test_code_grouping_separates_tight_goal_groups_from_split_ones():
     assert good["silhouette"] > 0.9 and bad["silhouette"] < 0
     assert good["within_over_between"] < 0.05 and bad["within_over_between"] > 1
     assert good["distinct_codes_per_goal"] == [2, 2] and good["test_nearest_goal"] == 1.0
+
+
+def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys):
+    from scripts.early_curves import main
+
+    def write(folder, steps, per_seed):
+        folder.mkdir()
+        rows = [{"train/env_steps": 10, "train/success": 0.0}]  # a chunk without evaluation is skipped
+        for step, success in zip(steps, per_seed):
+            goals = [success[0], None]
+            rows.append(
+                {"train/env_steps": step, "eval/train/success_per_seed": success, "eval/train/success_per_goal": goals}
+            )
+        (folder / "ifp_metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
+
+    write(tmp_path / "long", [100, 200, 300], [[0.1, 0.3], [0.5, 0.7], [0.9, 0.9]])
+    write(tmp_path / "short", [100, 200], [[0.0], [0.25]])
+    assert main(["--until", "250", f"long={tmp_path / 'long'}", f"short={tmp_path / 'short'}"]) == 0
+    out = capsys.readouterr().out
+    assert "| method | seeds | 100 | 200 | mean over these | last, per goal |" in out
+    assert "| long | 2 | 20.0 (10/30) | 60.0 (50/70) | 40.0 (30/50) | 50/- |" in out  # 300 is past --until
+    assert "| short | 1 | 0.0 | 25.0 | 12.5 | 25/- |" in out
+    with pytest.raises(SystemExit, match="no evaluation on train instructions at or before 50"):
+        main(["--until", "50", f"long={tmp_path / 'long'}"])
+    with pytest.raises(SystemExit, match="LABEL=FOLDER"):
+        main(["--until", "50", str(tmp_path / "long")])

@@ -1,0 +1,90 @@
+"""Compare methods' learning curves up to a common env-step budget, for a run cut short of the paper's.
+
+``python scripts/early_curves.py --until 327680 --split train "Fine-tuned BERT-continuous=runs/study/x/x"
+"BERT-continuous=results/kitchen-compare-5seeds-4M/bert-continuous" ...``
+
+Each ``LABEL=FOLDER`` names a record (``scripts/record_result.py``'s ``ifp_metrics.jsonl``) or a run's method folder
+(``ifp/ppo/metrics.jsonl``). PPO here has no learning-rate schedule, so the first evaluations of a longer run are those
+a run stopped at ``--until`` would have made: a reduced-budget probe can be read against the first ``--until`` env
+steps of runs at the paper's budget. Prints a markdown table: success at every evaluation up to ``--until`` (mean
+over seeds, then the per-seed values), the mean success over that part of the curve per seed, and the last
+evaluation's success per goal (pooled over seeds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def metrics_path(folder: Path) -> Path:
+    """The IFP metrics file of a record or of a run's method folder."""
+    for candidate in (folder / "ifp_metrics.jsonl", folder / "ifp" / "ppo" / "metrics.jsonl"):
+        if candidate.is_file():
+            return candidate
+    raise FileNotFoundError(f"{folder} holds neither ifp_metrics.jsonl nor ifp/ppo/metrics.jsonl")
+
+
+def early_curve(path: Path, until: int, split: str) -> dict:
+    """Evaluations of one method up to ``until`` env steps: env steps (T,), success per seed (S, T) and the last
+    one's success per goal (pooled over seeds; None: no episode)."""
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = [r for r in rows if f"eval/{split}/success_per_seed" in r and r["train/env_steps"] <= until]
+    if not rows:
+        raise ValueError(f"{path}: no evaluation on {split} instructions at or before {until} env steps")
+    success = np.array([r[f"eval/{split}/success_per_seed"] for r in rows], float).T
+    return {
+        "env_steps": np.array([r["train/env_steps"] for r in rows]),
+        "success": success,
+        "last_per_goal": rows[-1][f"eval/{split}/success_per_goal"],
+    }
+
+
+def _cell(values: np.ndarray) -> str:
+    per_seed = "/".join(f"{100 * v:.0f}" for v in values)
+    return f"{100 * values.mean():.1f} ({per_seed})" if len(values) > 1 else f"{100 * values.mean():.1f}"
+
+
+def table(curves: dict[str, dict], split: str) -> str:
+    """Markdown: one row per method, one column per evaluation step every method reached, then the curve mean."""
+    steps = sorted(set.intersection(*(set(c["env_steps"].tolist()) for c in curves.values())))
+    if not steps:
+        raise ValueError("the methods share no evaluation step")
+    head = [f"{s:,}" for s in steps]
+    lines = [
+        f"success on {split} instructions, % (mean over seeds, then per seed)",
+        "",
+        "| method | seeds | " + " | ".join(head) + " | mean over these | last, per goal |",
+        "|---" * (len(head) + 4) + "|",
+    ]
+    for label, curve in curves.items():
+        at = [curve["success"][:, list(curve["env_steps"]).index(s)] for s in steps]
+        goals = "/".join("-" if g is None else f"{100 * g:.0f}" for g in curve["last_per_goal"])
+        cells = [_cell(a) for a in at] + [_cell(np.stack(at, axis=1).mean(axis=1)), goals]
+        lines.append(f"| {label} | {curve['success'].shape[0]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
+    parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
+    parser.add_argument("--split", choices=("train", "test"), default="train")
+    args = parser.parse_args(argv)
+    pairs = [m.split("=", 1) for m in args.methods]
+    if any(len(p) != 2 or not p[0] for p in pairs):
+        sys.exit("error: methods are given as LABEL=FOLDER")
+    try:
+        curves = {label: early_curve(metrics_path(Path(folder)), args.until, args.split) for label, folder in pairs}
+        print(table(curves, args.split))
+    except (FileNotFoundError, ValueError) as err:
+        sys.exit(f"error: {err}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
