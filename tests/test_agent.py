@@ -271,3 +271,22 @@ def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys
         main(["--until", "50", f"long={tmp_path / 'long'}"])
     with pytest.raises(SystemExit, match="LABEL=FOLDER"):
         main(["--until", "50", str(tmp_path / "long")])
+
+
+def test_finetuned_bert_drift_measures_weight_change_and_grouping(tmp_path):
+    from scripts.finetuned_bert_drift import goal_grouping, main, relative_change
+
+    pretrained = {"a": np.ones((3, 4)), "b": {"c": -2 * np.ones(5)}}
+    assert abs(relative_change(jax.tree.map(lambda x: 1.1 * x, pretrained), pretrained) - 0.1) < 1e-6
+    goals = np.array([0, 0, 1, 1, 0, 1])
+    is_train = np.array([True, True, True, True, False, False])
+    tight = np.array([[0.0, 0], [0.1, 0], [5, 5], [5, 5.1], [0, 0.1], [5.1, 5]])
+    assert goal_grouping(tight, goals, is_train) == pytest.approx(
+        {"silhouette": 0.98, "test_nearest_goal": 1.0}, abs=0.02
+    )
+    folder = tmp_path / "bert-binary"
+    (folder / "ifp").mkdir(parents=True)
+    (folder / "ifp" / "stage.json").write_text("{}")
+    (folder / "config.json").write_text(json.dumps({"method": "bert-binary", "env": "kitchen"}))
+    with pytest.raises(SystemExit, match="is a bert-binary run, not a finetuned-bert"):
+        main([str(folder)])

@@ -1,0 +1,109 @@
+"""How far a fine-tuned BERT run's encoder moved from the pre-trained weights, and whether its sentence embeddings
+still group by goal (paper Fig. 14, Appendix E.5).
+
+    python scripts/finetuned_bert_drift.py RUN_DIR [--seed 0]
+
+RUN_DIR is a ``finetuned-bert-*`` run (finished or not: the latest policy checkpoint is read). Prints, for one seed:
+the relative change of the trained BERT weights, ||theta - theta_0|| / ||theta_0||; and the silhouette by goal of the
+training instructions (scikit-learn, Euclidean; 1 = each goal a tight, separate group) and the share of test
+instructions whose nearest training instruction names their goal, for three representations: the pooled sentence
+embedding under the pre-trained weights (what the frozen BERT-* baselines read), the same under the fine-tuned
+weights, and the codes the policy reads (the encoding layer on the fine-tuned embedding).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from talar_jax import runtime
+
+runtime.configure()
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from sklearn.metrics import silhouette_score  # noqa: E402
+
+from experiments.tsne import nearest_training_goal_accuracy  # noqa: E402
+from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder  # noqa: E402
+from talar_jax.baselines import FinetunedBertConditioner  # noqa: E402
+from talar_jax.language import build_cache, load_encoder  # noqa: E402
+from talar_jax.language.bert import mean_pool  # noqa: E402
+
+
+def relative_change(tuned, pretrained) -> float:
+    """||tuned - pretrained|| / ||pretrained|| over every leaf of two matching parameter trees."""
+    diff = sum(float(jnp.sum((a - b) ** 2)) for a, b in zip(jax.tree.leaves(tuned), jax.tree.leaves(pretrained)))
+    norm = sum(float(jnp.sum(b**2)) for b in jax.tree.leaves(pretrained))
+    return float(np.sqrt(diff / norm))
+
+
+def goal_grouping(vectors: np.ndarray, goals: np.ndarray, is_train: np.ndarray) -> dict[str, float]:
+    """Silhouette by goal over the training rows; test rows' nearest-training-goal accuracy."""
+    return {
+        "silhouette": float(silhouette_score(vectors[is_train], goals[is_train])),
+        "test_nearest_goal": float(nearest_training_goal_accuracy(vectors, goals, is_train)),
+    }
+
+
+def drift(run_dir: str | Path, seed: int = 0) -> dict:
+    folder = find_method_folder(run_dir)
+    config = json.loads((folder / "config.json").read_text())
+    if not str(config.get("method", "")).startswith("finetuned-"):
+        raise AgentError(f"{folder} is a {config.get('method')} run, not a finetuned-bert-* one")
+    params = _latest_policy_params(folder / "ifp" / "ppo")["conditioner"]
+    seeds = jax.tree.leaves(params)[0].shape[0]
+    if not 0 <= seed < seeds:
+        raise AgentError(f"seed {seed} is not in this run (it has {seeds})")
+    params = jax.tree.map(lambda leaf: jnp.asarray(leaf[seed]), params)
+    encoder = load_encoder(config.get("encoder"))
+    cache = build_cache(config["env"], encoder, progress=False)
+    mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
+    train_rows = np.flatnonzero(cache.is_train)
+    lookups = {"train": (cache.goal_sentences, cache.goal_sentence_counts)}  # only the loss rows matter here
+    conditioner = FinetunedBertConditioner(
+        encoder.config,
+        encoder.params,
+        cache.token_ids,
+        mask,
+        lookups,
+        params["layer"]["params"]["Dense_0"]["kernel"].shape[-1],
+        config["method"].endswith("binary"),
+        config["talar"]["finetuned_bert_first_layer"],
+        train_rows,
+    )
+
+    def pooled(bert):
+        hidden = conditioner.model.apply({"params": bert}, conditioner.inputs, conditioner.mask)
+        return np.asarray(mean_pool(hidden, conditioner.mask))
+
+    goals, is_train = np.asarray(cache.goal_ids), np.asarray(cache.is_train)
+    codes = np.asarray(conditioner.encode(params, jnp.arange(len(goals))))
+    return {
+        "method": config["method"],
+        "seed": seed,
+        "first_trained_layer": config["talar"]["finetuned_bert_first_layer"],
+        "bert_relative_change": relative_change(params["bert"], conditioner.pretrained),
+        "pretrained_embedding": goal_grouping(pooled(conditioner.pretrained), goals, is_train),
+        "finetuned_embedding": goal_grouping(pooled(params["bert"]), goals, is_train),
+        "codes": goal_grouping(codes, goals, is_train),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    try:
+        print(json.dumps(drift(args.run_dir, args.seed), indent=1))
+    except AgentError as error:
+        sys.exit(f"error: {error}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
