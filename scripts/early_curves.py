@@ -8,7 +8,8 @@ Each ``LABEL=FOLDER`` names a record (``scripts/record_result.py``'s ``ifp_metri
 a run stopped at ``--until`` would have made: a reduced-budget probe can be read against the first ``--until`` env
 steps of runs at the paper's budget. Prints a markdown table: success at every evaluation up to ``--until`` (mean
 over seeds, then the per-seed values), the mean success over that part of the curve per seed, and the last
-evaluation's success per goal (pooled over seeds).
+evaluation's success per goal (pooled over seeds). ``--plot PATH`` also draws the curves up to ``--until`` on training
+and test instructions (mean +- std over seeds, as the run reports draw them).
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
+
+from talar_jax.report import LearningCurve, plot_learning_curves
 
 
 def metrics_path(folder: Path) -> Path:
@@ -74,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
     parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
     parser.add_argument("--split", choices=("train", "test"), default="train")
+    parser.add_argument("--plot", type=Path, help="also write the curves up to --until to this PNG")
     args = parser.parse_args(argv)
     pairs = [m.split("=", 1) for m in args.methods]
     if any(len(p) != 2 or not p[0] for p in pairs):
@@ -81,6 +85,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         curves = {label: early_curve(metrics_path(Path(folder)), args.until, args.split) for label, folder in pairs}
         print(table(curves, args.split))
+        if args.plot:
+            both = {}
+            for label, folder in pairs:
+                splits = {s: early_curve(metrics_path(Path(folder)), args.until, s) for s in ("train", "test")}
+                both[label] = LearningCurve(splits["train"]["env_steps"], {s: c["success"] for s, c in splits.items()})
+            print(f"wrote {plot_learning_curves(both, args.plot, title=f'first {args.until:,} env steps')}")
     except (FileNotFoundError, ValueError) as err:
         sys.exit(f"error: {err}")
     return 0

@@ -267,6 +267,16 @@ def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys
     assert "| method | seeds | 100 | 200 | mean over these | last, per goal |" in out
     assert "| long | 2 | 20.0 (10/30) | 60.0 (50/70) | 40.0 (30/50) | 50/- |" in out  # 300 is past --until
     assert "| short | 1 | 0.0 | 25.0 | 12.5 | 25/- |" in out
+    # test instructions are not in the synthetic rows: the plot needs both splits, and says so
+    with pytest.raises(SystemExit, match="no evaluation on test instructions"):
+        main(["--until", "250", "--plot", str(tmp_path / "c.png"), f"long={tmp_path / 'long'}"])
+    both = tmp_path / "both"
+    both.mkdir()
+    evaluation = {f"eval/{s}/success_{k}": [0.5] for s in ("train", "test") for k in ("per_seed", "per_goal")}
+    rows = [{"train/env_steps": n, **evaluation} for n in (100, 200)]
+    (both / "ifp_metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
+    assert main(["--until", "250", "--plot", str(tmp_path / "c.png"), f"both={both}"]) == 0
+    assert (tmp_path / "c.png").stat().st_size > 1000
     with pytest.raises(SystemExit, match="no evaluation on train instructions at or before 50"):
         main(["--until", "50", f"long={tmp_path / 'long'}"])
     with pytest.raises(SystemExit, match="LABEL=FOLDER"):
