@@ -456,20 +456,15 @@ def _finetuned_setup(ctx: MethodContext, binary: bool) -> MethodSetup:
     the encoding layer reads the pooled sentence embedding (the paper's BERT readout: a prefix readout would need a
     BERT pass per prefix inside the loop)."""
     config, cache = ctx.config, ctx.cache
-    encoder = load_encoder(config.encoder)
-    mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
     lookups = ctx.lookups()
-    train_rows = split_instruction_ids(lookups, "train")
-    conditioner = FinetunedBertConditioner(
-        encoder.config,
-        encoder.params,
-        cache.token_ids,
-        mask,
+    conditioner = FinetunedBertConditioner.from_cache(
+        load_encoder(config.encoder),
+        cache,
         lookups,
         config.talar.spec.size,
         binary,
         config.talar.finetuned_bert_first_layer,
-        train_rows,
+        split_instruction_ids(lookups, "train"),
     )
     ((_, key),) = method_stage_keys(config, ctx.upstream_key, cache.key).items()
     return MethodSetup(conditioner, None, key, None)

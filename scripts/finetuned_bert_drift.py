@@ -61,19 +61,15 @@ def drift(run_dir: str | Path, seed: int = 0) -> dict:
     params = jax.tree.map(lambda leaf: jnp.asarray(leaf[seed]), params)
     encoder = load_encoder(config.get("encoder"))
     cache = build_cache(config["env"], encoder, progress=False)
-    mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
-    train_rows = np.flatnonzero(cache.is_train)
     lookups = {"train": (cache.goal_sentences, cache.goal_sentence_counts)}  # only the loss rows matter here
-    conditioner = FinetunedBertConditioner(
-        encoder.config,
-        encoder.params,
-        cache.token_ids,
-        mask,
+    conditioner = FinetunedBertConditioner.from_cache(
+        encoder,
+        cache,
         lookups,
         params["layer"]["params"]["Dense_0"]["kernel"].shape[-1],
         config["method"].endswith("binary"),
         config["talar"]["finetuned_bert_first_layer"],
-        train_rows,
+        np.flatnonzero(cache.is_train),
     )
 
     def pooled(bert):

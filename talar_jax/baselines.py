@@ -253,6 +253,32 @@ class FinetunedBertConditioner(Conditioner):
         self.loss_rows = jnp.asarray(np.unique(np.asarray(loss_rows)), jnp.int32)
         self.sampler = InstructionSampler(goal_sentences_by_split, num_instructions=len(self.mask))
 
+    @classmethod
+    def from_cache(
+        cls,
+        encoder: Any,
+        cache: Any,
+        goal_sentences_by_split: Mapping,
+        size: int,
+        binary: bool,
+        first_layer: int,
+        loss_rows: Any,
+    ) -> FinetunedBertConditioner:
+        """The conditioner over every sentence of a language cache (its word pieces; padding masked), starting from
+        ``encoder``'s weights (a ``load_encoder`` result: ``config`` and ``params``)."""
+        mask = (np.arange(cache.token_ids.shape[1])[None, :] < cache.token_lengths[:, None]).astype(np.int32)
+        return cls(
+            encoder.config,
+            encoder.params,
+            cache.token_ids,
+            mask,
+            goal_sentences_by_split,
+            size,
+            binary,
+            first_layer,
+            loss_rows,
+        )
+
     def init(self, rng: jax.Array) -> Any:
         layer = self.layer.init(rng, jnp.zeros((1, self.hidden_size), jnp.float32))
         return {"bert": self.pretrained, "layer": layer}

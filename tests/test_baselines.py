@@ -1,5 +1,7 @@
 """Baseline encodings: straight-through binary codes, the NL encoding layer, GLA's latent-action auto-encoder."""
 
+from types import SimpleNamespace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -211,3 +213,15 @@ def test_ppo_trains_the_finetuned_bert_with_the_policy():
     start = conditioner.init(jax.random.PRNGKey(0))["bert"]
     moved = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a[0] - b))), result.params["conditioner"]["bert"], start)
     assert max(jax.tree.leaves(moved)) > 1e-4  # BERT itself was optimised with the policy
+
+
+def test_finetuned_bert_from_a_cache_masks_each_sentences_padding():
+    encoder = load_encoder(TINY_BERT)
+    ids, mask = _token_sentences(encoder, 6, seed=2)
+    cache = SimpleNamespace(token_ids=ids, token_lengths=mask.sum(1))
+    lookup = {"train": (np.arange(6).reshape(3, 2), np.full(3, 2))}
+    built = FinetunedBertConditioner.from_cache(encoder, cache, lookup, 5, True, 1, np.arange(4))
+    direct = FinetunedBertConditioner(encoder.config, encoder.params, ids, mask, lookup, 5, True, 1, np.arange(4))
+    np.testing.assert_array_equal(built.mask, mask)
+    params = direct.init(jax.random.PRNGKey(3))
+    np.testing.assert_allclose(built.freeze(params)["codes"], direct.freeze(params)["codes"], atol=1e-6)
