@@ -7,7 +7,7 @@ runs some of them. The physics backend defaults to MuJoCo C on a CPU and MJX on 
 
 On the 2-core CPU of results/README.md this is several days of compute (a 4M-step kitchen policy of 5 seeds takes
 50-75 minutes, and the kitchen studies need 13 of them); Fig. 14 (``finetuned-bert``: BERT trained inside the policy
-loop, about 120 h per seed there) runs only with ``--finetuned-bert``, meant for a GPU.
+loop, about 63 h per seed there) runs only with ``--finetuned-bert``, meant for a GPU.
 """
 
 from __future__ import annotations
