@@ -58,6 +58,27 @@ def nearest_training_goal_accuracy(codes: np.ndarray, goal_ids: np.ndarray, is_t
     return score / len(test_goals)
 
 
+def goal_grouping(codes: np.ndarray, goals: np.ndarray, is_train: np.ndarray) -> dict:
+    """How tightly codes group by goal: over the training rows the silhouette by goal (scikit-learn, Euclidean; 1 =
+    each goal a tight, separate group), the mean distance between two instructions of one goal over the mean distance
+    between instructions of different goals, the number of distinct (rounded) codes per goal; and the test rows'
+    ``nearest_training_goal_accuracy``."""
+    from scipy.spatial.distance import cdist
+    from sklearn.metrics import silhouette_score
+
+    train, train_goals = codes[is_train], goals[is_train]
+    distances = cdist(train, train)
+    same = train_goals[:, None] == train_goals[None, :]
+    within = distances[same & ~np.eye(len(train), dtype=bool)].mean()
+    rounded = np.round(train, 3)
+    return {
+        "silhouette": float(silhouette_score(train, train_goals)),
+        "within_over_between": float(within / distances[~same].mean()),
+        "distinct_codes_per_goal": [len(np.unique(rounded[train_goals == g], axis=0)) for g in np.unique(train_goals)],
+        "test_nearest_goal": float(nearest_training_goal_accuracy(codes, goals, is_train)),
+    }
+
+
 def write_tsne_grid(folders: Sequence[Path], path: Path, seed: int = 0) -> tuple[Path, list[str]]:
     """Fig. 11 for the runs in ``folders`` (method folders of one env) at ``path``; returns the path and the labels of
     runs left out (methods without a sentence encoding, e.g. One-hot). Raises ``AgentError`` for a folder that is

@@ -21,27 +21,10 @@ from talar_jax import runtime
 runtime.configure()
 
 import numpy as np  # noqa: E402
-from scipy.spatial.distance import cdist  # noqa: E402
-from sklearn.metrics import silhouette_score  # noqa: E402
 
 from experiments.pipeline import trained_codes  # noqa: E402
-from experiments.tsne import nearest_training_goal_accuracy  # noqa: E402
+from experiments.tsne import goal_grouping as grouping  # noqa: E402
 from talar_jax.agent import AgentError, find_method_folder, load  # noqa: E402
-
-
-def grouping(codes: np.ndarray, goals: np.ndarray, is_train: np.ndarray) -> dict:
-    """Silhouette, within / between distance ratio, distinct codes per goal (training rows) and test NN accuracy."""
-    train, train_goals = codes[is_train], goals[is_train]
-    distances = cdist(train, train)
-    same = train_goals[:, None] == train_goals[None, :]
-    within = distances[same & ~np.eye(len(train), dtype=bool)].mean()
-    rounded = np.round(train, 3)
-    return {
-        "silhouette": float(silhouette_score(train, train_goals)),
-        "within_over_between": float(within / distances[~same].mean()),
-        "distinct_codes_per_goal": [len(np.unique(rounded[train_goals == g], axis=0)) for g in np.unique(train_goals)],
-        "test_nearest_goal": nearest_training_goal_accuracy(codes, goals, is_train),
-    }
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -83,13 +83,16 @@ def main(argv: list[str] | None = None) -> int:
     if any(len(p) != 2 or not p[0] for p in pairs):
         sys.exit("error: methods are given as LABEL=FOLDER")
     try:
-        curves = {label: early_curve(metrics_path(Path(folder)), args.until, args.split) for label, folder in pairs}
-        print(table(curves, args.split))
+        splits = ("train", "test") if args.plot else (args.split,)  # the plot draws both
+        by_split = {s: {label: early_curve(metrics_path(Path(f)), args.until, s) for label, f in pairs} for s in splits}
+        print(table(by_split[args.split], args.split))
         if args.plot:
-            both = {}
-            for label, folder in pairs:
-                splits = {s: early_curve(metrics_path(Path(folder)), args.until, s) for s in ("train", "test")}
-                both[label] = LearningCurve(splits["train"]["env_steps"], {s: c["success"] for s, c in splits.items()})
+            both = {
+                label: LearningCurve(
+                    by_split["train"][label]["env_steps"], {s: by_split[s][label]["success"] for s in splits}
+                )
+                for label, _ in pairs
+            }
             print(f"wrote {plot_learning_curves(both, args.plot, title=f'first {args.until:,} env steps')}")
     except (FileNotFoundError, ValueError) as err:
         sys.exit(f"error: {err}")

@@ -25,9 +25,8 @@ runtime.configure()
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-from sklearn.metrics import silhouette_score  # noqa: E402
 
-from experiments.tsne import nearest_training_goal_accuracy  # noqa: E402
+from experiments.tsne import goal_grouping as tsne_goal_grouping  # noqa: E402
 from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder  # noqa: E402
 from talar_jax.baselines import FinetunedBertConditioner  # noqa: E402
 from talar_jax.language import build_cache, load_encoder  # noqa: E402
@@ -42,11 +41,9 @@ def relative_change(tuned, pretrained) -> float:
 
 
 def goal_grouping(vectors: np.ndarray, goals: np.ndarray, is_train: np.ndarray) -> dict[str, float]:
-    """Silhouette by goal over the training rows; test rows' nearest-training-goal accuracy."""
-    return {
-        "silhouette": float(silhouette_score(vectors[is_train], goals[is_train])),
-        "test_nearest_goal": float(nearest_training_goal_accuracy(vectors, goals, is_train)),
-    }
+    """Silhouette by goal over the training rows; test rows' nearest-training-goal accuracy (``experiments.tsne``)."""
+    grouping = tsne_goal_grouping(vectors, goals, is_train)
+    return {key: grouping[key] for key in ("silhouette", "test_nearest_goal")}
 
 
 def drift(run_dir: str | Path, seed: int = 0) -> dict:
