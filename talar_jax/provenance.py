@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import shlex
 import subprocess
 import sys
@@ -26,12 +27,15 @@ def git_commit(folder: str | Path | None = None) -> str | None:
     return commit.stdout.strip() + ("-dirty" if status.stdout.strip() else "")
 
 
-# Read once, when the process imports this module (the entry points do so at start): a long run whose checkout moves on
-# while it trains (a commit, an edit) still names the code it imported.
-PROCESS_COMMIT = git_commit()
+@functools.cache
+def process_commit() -> str | None:
+    """This package's checkout's commit (``git_commit()``), read on the first call and kept for the process: a command
+    asks when it starts (``talar_jax.runtime.start``), so a long run whose checkout moves on while it trains (a commit,
+    an edit) still names the code it started with."""
+    return git_commit()
 
 
 def provenance() -> dict[str, str | None]:
-    """``{"command": ..., "commit": ...}`` of the running process; the commit is the one checked out when the process
-    started (``PROCESS_COMMIT``), not the one at the time of the call."""
-    return {"command": "python " + shlex.join(sys.argv), "commit": PROCESS_COMMIT}
+    """``{"command": ..., "commit": ...}`` of the running process; the commit is ``process_commit()``: the one checked
+    out when the process started, not the one at the time of the call."""
+    return {"command": "python " + shlex.join(sys.argv), "commit": process_commit()}

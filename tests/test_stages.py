@@ -38,10 +38,10 @@ def test_stable_hash_depends_on_content_only():
 
 
 def test_provenance_names_the_commit_the_process_started_on(monkeypatch):
-    """A run that outlives a checkout change (a commit made while it trains) still names the code it imported."""
+    """A run that outlives a checkout change (a commit made while it trains) still names the code it started with."""
     from talar_jax import provenance as provenance_module
 
-    started = provenance_module.PROCESS_COMMIT
+    started = provenance_module.process_commit()
     assert started == provenance_module.git_commit()  # the checkout has not moved during the test
     monkeypatch.setattr(provenance_module, "git_commit", lambda folder=None: "0" * 40 + "-dirty")
     assert provenance_module.provenance()["commit"] == started
