@@ -1,9 +1,18 @@
 """TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
+from typing import Any
+
 from experiments.pipeline import command, default_config
+from talar_jax import runtime
 
 DEFAULT = default_config("clevr")
-main = command("clevr")
+_command = command("clevr")
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    runtime.start()
+    return _command(argv)
+
 
 if __name__ == "__main__":
     main()

@@ -31,6 +31,7 @@ from experiments.pipeline import (
     stage_oracle_key,
 )
 from experiments.recipes import recipe_names
+from talar_jax import runtime
 from talar_jax.language import build_cache
 from talar_jax.report import plot_learning_curves, results_table
 
@@ -187,5 +188,11 @@ def write_fig11(base: ExperimentConfig, methods: tuple[str, ...], suffix: str = 
     )
 
 
+def main(argv: list[str] | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """``python -m experiments.compare``: a bad option prints one ``error:`` line and exits with status 2."""
+    runtime.start()
+    return main_with(CompareArgs, compare, argv, __doc__)
+
+
 if __name__ == "__main__":
-    main_with(CompareArgs, compare, None, __doc__)
+    main()

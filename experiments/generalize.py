@@ -21,6 +21,7 @@ import numpy as np
 import tyro
 
 from experiments.instruct import agent_command
+from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError, find_method_folder
 from talar_jax.language import load_instructions, load_user_instructions
 
@@ -112,6 +113,7 @@ def generalize(args: GeneralizeArgs) -> dict:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    runtime.start()
     return agent_command(GeneralizeArgs, generalize, argv, __doc__)
 
 

@@ -31,6 +31,7 @@ import tyro
 import envs
 from experiments.cli import valid_or_exit
 from experiments.pipeline import CLI_CONFIG, default_config, run
+from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.hrl import (
     HighLevelEnv,
@@ -291,6 +292,7 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    runtime.start()
     args = tyro.cli(HRLArgs, args=argv, config=CLI_CONFIG, description=__doc__.splitlines()[0])
     valid_or_exit(resolve, args)
     return hrl(args)

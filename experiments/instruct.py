@@ -23,6 +23,7 @@ import numpy as np
 import tyro
 
 from experiments.recipes import get_recipe
+from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError
 
 
@@ -150,6 +151,7 @@ def agent_command(cls, function, argv: list[str] | None, description: str | None
 
 
 def main(argv: list[str] | None = None) -> dict:
+    runtime.start()
     return agent_command(InstructArgs, instruct, argv, __doc__)
 
 

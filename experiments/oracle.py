@@ -30,6 +30,7 @@ import tyro
 import envs
 from experiments.cli import valid_or_exit
 from experiments.recipes import get_recipe
+from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.conditioning import GoalOneHotConditioner, InstructionSampler
 from talar_jax.dataset import TaskDataset, collect_task_dataset, policy_behaviour
@@ -214,6 +215,7 @@ def run(args: OracleArgs) -> float:
 
 def main(argv: list[str] | None = None) -> float:
     """``python -m experiments.oracle``: a bad option prints one ``error:`` line and exits with status 2."""
+    runtime.start()
     args = tyro.cli(OracleArgs, args=argv, description=__doc__)
     valid_or_exit(lambda: (get_recipe(args.env), collector_of(args)))
     return run(args)

@@ -22,6 +22,7 @@ import tyro
 
 from experiments.cli import valid_or_exit
 from experiments.pipeline import CLI_CONFIG
+from talar_jax import runtime
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,6 +120,7 @@ def selected(args: PaperArgs) -> list[Job]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    runtime.start()
     args = tyro.cli(PaperArgs, args=argv, config=CLI_CONFIG, description=__doc__)
     todo = valid_or_exit(selected, args)
     for index, job in enumerate(todo):

@@ -17,6 +17,7 @@ import tyro
 from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
 from experiments.methods import METHOD_LABELS
 from experiments.pipeline import ExperimentConfig, default_config
+from talar_jax import runtime
 from talar_jax.report import percent_cell
 
 PAPER = {
@@ -87,5 +88,11 @@ def patterns(args: PatternsArgs) -> str:
     return table
 
 
+def main(argv: list[str] | None = None) -> str:
+    """``python -m experiments.patterns``: a bad option prints one ``error:`` line and exits with status 2."""
+    runtime.start()
+    return main_with(PatternsArgs, patterns, argv, __doc__)
+
+
 if __name__ == "__main__":
-    main_with(PatternsArgs, patterns, None, __doc__)
+    main()

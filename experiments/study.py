@@ -35,15 +35,13 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import tyro
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import tyro  # noqa: E402
-
-from experiments.cli import valid_or_exit  # noqa: E402
-from experiments.compare import env_option  # noqa: E402
-from experiments.pipeline import (  # noqa: E402
+from experiments.cli import valid_or_exit
+from experiments.compare import env_option
+from experiments.pipeline import (
     CLI_CONFIG,
     ExperimentConfig,
     check_inputs,
@@ -54,11 +52,14 @@ from experiments.pipeline import (  # noqa: E402
     run,
     stage_oracle_key,
 )
-from experiments.recipes import recipe_names  # noqa: E402
-from talar_jax.checkpoint import write_json_atomic  # noqa: E402
-from talar_jax.language import build_cache  # noqa: E402
-from talar_jax.provenance import provenance  # noqa: E402
-from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves  # noqa: E402
+from experiments.recipes import recipe_names
+from talar_jax import runtime
+from talar_jax.checkpoint import write_json_atomic
+from talar_jax.language import build_cache
+from talar_jax.provenance import provenance
+from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves
+
+matplotlib.use("Agg")  # figures are only written to files
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
@@ -310,6 +311,7 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
 
 
 def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    runtime.start()
     env = env_option(argv, default="kitchen")
     default = None
     if env in recipe_names():

@@ -24,6 +24,7 @@ from experiments.instruct import agent_command
 from experiments.methods import METHOD_LABELS
 from experiments.pipeline import trained_codes
 from experiments.recipes import get_recipe
+from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.language import build_cache, load_encoder
@@ -137,6 +138,7 @@ def tsne(args: TsneArgs) -> Path:
 
 
 def main(argv: list[str] | None = None) -> Path:
+    runtime.start()
     return agent_command(TsneArgs, tsne, argv, __doc__)
 
 
