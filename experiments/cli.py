@@ -6,6 +6,8 @@ import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+import tyro
+
 T = TypeVar("T")
 
 
@@ -16,3 +18,7 @@ def valid_or_exit(check: Callable[..., T], *args: Any) -> T:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+
+
+CLI_CONFIG = (tyro.conf.AvoidSubcommands,)
+"""tyro settings of every command: optional nested configs (``--talar.*``, ``--ifp.*``) stay plain options."""

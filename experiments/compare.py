@@ -17,26 +17,16 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from experiments.methods import METHOD_LABELS, METHODS, PAPER_COMPARISON
-from experiments.pipeline import (
-    CLI_CONFIG,
-    ExperimentConfig,
-    check_inputs,
-    default_config,
-    finished_summary,
-    ifp_result,
-    learning_curve,
-    run,
-    run_name,
-    stage_oracle_key,
-)
-from experiments.recipes import recipe_names
+from experiments.cli import CLI_CONFIG
+from experiments.config import ExperimentConfig, default_config, run_name
+from experiments.methods import PAPER_COMPARISON, method_label, method_names
+from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
+from experiments.recipes import get_recipe, recipe_names
+from experiments.reports import ifp_result, learning_curve
 from talar_jax import runtime
 from talar_jax.language import build_cache
 from talar_jax.report import plot_learning_curves, results_table
 
-PAPER_MARGIN: dict[str, float] = {"clevr": 13.4, "kitchen": 63.2}
-"""TALAR's lead over the best baseline in the paper's Fig. 4, points of success."""
 NOT_A_BASELINE: tuple[str, ...] = ("talar", "handcrafted")
 """Left out of the best baseline: TALAR itself, and Handcrafted (a hand-made goal code: the paper's Fig. 16)."""
 
@@ -57,9 +47,9 @@ class CompareArgs:
 
 def base_config(args: CompareArgs) -> ExperimentConfig:
     """The resolved experiment every method of the comparison runs (validated; one ValueError per bad input)."""
-    unknown = [m for m in args.methods if m not in METHODS]
+    unknown = [m for m in args.methods if m not in method_names()]
     if unknown or not args.methods:
-        raise ValueError(f"unknown method(s) {unknown}; valid methods: {', '.join(METHODS)}")
+        raise ValueError(f"unknown method(s) {unknown}; valid methods: {', '.join(method_names())}")
     if args.ifp_env_steps is not None and args.ifp_env_steps < 1:
         raise ValueError(f"--ifp-env-steps must be >= 1, got {args.ifp_env_steps}")
     experiment = args.experiment
@@ -119,12 +109,12 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
     for method in args.methods:
         run(dataclasses.replace(base, method=method))
     earlier = finished_methods(base, args.methods)  # once: it hashes every method's stage keys
-    shown = [m for m in METHODS if m in args.methods or m in earlier]
+    shown = [m for m in method_names() if m in args.methods or m in earlier]
     for method in shown:
         config = dataclasses.replace(base, method=method)
         curve = learning_curve(ifp_result(config))
-        curves[METHOD_LABELS[method]] = curve
-        final[METHOD_LABELS[method]] = {split: rates[:, -1] for split, rates in curve.success.items()}
+        curves[method_label(method)] = curve
+        final[method_label(method)] = {split: rates[:, -1] for split, rates in curve.success.items()}
     title = f"{env} ({seeds} seeds)"
     suffix = f"-patterns{num_patterns}" if num_patterns else ""
     plot_learning_curves(curves, base.out / f"compare{suffix}.png", title=title)
@@ -139,7 +129,9 @@ def finished_summaries(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> di
     """Method -> run summary of each method (besides ``skip``) whose run finished in ``base.out`` with exactly this
     comparison's settings (``finished_summary``: a run at another budget or recipe does not count)."""
     candidates = [
-        m for m in METHODS if m not in skip and (base.out / run_name(dataclasses.replace(base, method=m))).is_dir()
+        m
+        for m in method_names()
+        if m not in skip and (base.out / run_name(dataclasses.replace(base, method=m))).is_dir()
     ]
     if not candidates:  # nothing to hash (the language cache's key needs its encoder)
         return {}
@@ -156,17 +148,19 @@ def finished_methods(base: ExperimentConfig, skip: tuple[str, ...] = ()) -> list
 
 def margin_lines(final: dict[str, dict[str, np.ndarray]], env: str) -> str:
     """TALAR's lead over the best baseline of the paper's Fig. 4 per split (mean over seeds), beside the paper's."""
-    names = [METHOD_LABELS[m] for m in PAPER_COMPARISON if m not in NOT_A_BASELINE]
+    names = [method_label(m) for m in PAPER_COMPARISON if m not in NOT_A_BASELINE]
     baselines = {label: final[label] for label in names if label in final}
-    if METHOD_LABELS["talar"] not in final or not baselines:
+    if method_label("talar") not in final or not baselines:
         return ""
+    paper_margin = get_recipe(env).paper_margin if env in recipe_names() else None
+    paper = f"+{paper_margin:.1f}" if paper_margin is not None else "n/a"
     lines = [
         "",
-        f"TALAR over the best baseline (paper: +{PAPER_MARGIN.get(env, float('nan')):.1f} points; "
+        f"TALAR over the best baseline (paper: {paper} points; "
         f"{len(baselines)} of the paper's {len(names)} baselines here; Handcrafted is Fig. 16, not a baseline):",
         "",
     ]
-    for split, rates in final[METHOD_LABELS["talar"]].items():
+    for split, rates in final[method_label("talar")].items():
         best = max(baselines, key=lambda label: float(np.mean(baselines[label][split])))
         margin = 100 * (float(np.mean(rates)) - float(np.mean(baselines[best][split])))
         lines.append(f"- {split} instructions: {margin:+.1f} points (best baseline {best})")

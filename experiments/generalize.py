@@ -21,6 +21,7 @@ import numpy as np
 import tyro
 
 from experiments.instruct import agent_command
+from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError, find_method_folder
 from talar_jax.language import load_instructions, load_user_instructions
@@ -93,7 +94,7 @@ def generalize(args: GeneralizeArgs) -> dict:
     seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
     per_seed, sizes = [], {}
     for seed in range(seeds):
-        agent = Agent(folder, seed=seed)
+        agent = load_agent(folder, seed=seed)
         if seed == 0:
             try:
                 sets = instruction_sets(agent, args.instructions)

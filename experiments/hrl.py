@@ -29,8 +29,9 @@ import numpy as np
 import tyro
 
 import envs
-from experiments.cli import valid_or_exit
-from experiments.pipeline import CLI_CONFIG, default_config, run
+from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.config import default_config
+from experiments.pipeline import run
 from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.hrl import (
@@ -164,7 +165,7 @@ def high_level_ppo(args: HRLArgs, steps: int, hidden: tuple[int, ...] = (64, 64)
 
 def build(args: HRLArgs, method: str, run_folder: Path):
     """(env, PPO config, steps per PPO env step) of one method."""
-    from talar_jax.agent import load
+    from experiments.reports import load_agent
 
     defaults = HRL_ENVS[args.env]
     options = dict(defaults.low_env_options)
@@ -177,7 +178,7 @@ def build(args: HRLArgs, method: str, run_folder: Path):
         config = dataclasses.replace(high_level_ppo(args, args.env_steps), num_envs=64, rollout_length=16)
         return low_env, config, 1
     low_env = envs.make(defaults.low_env, physics=args.physics, **options)
-    agent = load(run_folder, seed=args.ifp_seed, physics=args.physics)
+    agent = load_agent(run_folder, seed=args.ifp_seed, physics=args.physics)
     if method == "talar":
         spec = TaskLanguageSpec(**agent.config["talar"]["spec"])
         action_spec, code_of_action = talar_action_spec(spec), lambda action: task_language_code(spec, action)

@@ -23,6 +23,7 @@ import numpy as np
 import tyro
 
 from experiments.recipes import get_recipe
+from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError
 
@@ -89,7 +90,7 @@ def instruct(args: InstructArgs) -> dict:
     """Loads the agent, translates the sentence, runs the episodes and writes the video; returns what it printed."""
     check_args(args)
     start = time.perf_counter()
-    agent = Agent(args.run_dir, seed=args.seed)
+    agent = load_agent(args.run_dir, seed=args.seed)
     names = get_recipe(agent.env_name).goal_names()
     goal = parse_goal(args.goal, names)
     loaded = time.perf_counter()

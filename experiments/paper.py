@@ -20,8 +20,7 @@ from pathlib import Path
 
 import tyro
 
-from experiments.cli import valid_or_exit
-from experiments.pipeline import CLI_CONFIG
+from experiments.cli import CLI_CONFIG, valid_or_exit
 from talar_jax import runtime
 
 

@@ -15,8 +15,8 @@ from typing import Annotated
 import tyro
 
 from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
-from experiments.methods import METHOD_LABELS
-from experiments.pipeline import ExperimentConfig, default_config
+from experiments.config import ExperimentConfig, default_config
+from experiments.methods import method_label
 from talar_jax import runtime
 from talar_jax.report import percent_cell
 
@@ -64,8 +64,8 @@ def patterns(args: PatternsArgs) -> str:
     for k in args.patterns:
         final = compare(args.comparison(k))  # also holds the folder's earlier runs of this column
         for method in methods:
-            if METHOD_LABELS[method] in final:
-                cells[(method, k)] = percent_cell(final[METHOD_LABELS[method]]["train"])
+            if method_label(method) in final:
+                cells[(method, k)] = percent_cell(final[method_label(method)]["train"])
     for k in columns:
         if k not in args.patterns:
             for method, summary in finished_summaries(base_config(args.comparison(k))).items():
@@ -76,7 +76,7 @@ def patterns(args: PatternsArgs) -> str:
     )
     lines = ["### Success on training instructions (%), CLEVR", "", header, "|---|" + "---|" * (len(columns) + 1)]
     for method in methods:
-        label = METHOD_LABELS[method]
+        label = method_label(method)
         paper = " / ".join(f"{v:g}" for v in PAPER.get(label, ())) or "-"
         lines.append(f"| {label} | " + " | ".join(cells.get((method, k), "-") for k in columns) + f" | {paper} |")
     lines += ["", '"-": not run in this folder yet with these settings.']

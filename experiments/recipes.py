@@ -54,6 +54,12 @@ class EnvRecipe:
         ifp: the instruction-following policy's PPO defaults (the budget included).
         env_options: ``envs.make`` options of the IFP's env.
         showcase_goals: () -> goal ids the report's deployment strip shows one episode of (None: every goal).
+        train_patterns: the number of training sentence patterns (``--num-patterns`` picks the first k: paper
+            Table 3); None for an env whose instructions are not built from patterns.
+        per_goal_report: whether the run report tabulates success per goal (a handful of sub-tasks; CLEVR's 80
+            goals stay in summary.json).
+        paper_margin: TALAR's lead over the best baseline in the paper's Fig. 4, points of success (None: not in
+            the paper).
     """
 
     env: str
@@ -66,6 +72,9 @@ class EnvRecipe:
     ifp: PPOConfig
     env_options: dict[str, str] = dataclasses.field(default_factory=dict)
     showcase_goals: Callable[[], list[int]] | None = None
+    train_patterns: int | None = None
+    per_goal_report: bool = False
+    paper_margin: float | None = None
 
     @property
     def default_collector(self) -> str:
@@ -171,6 +180,8 @@ register_recipe(
         talar=CLEVR_TALAR,
         ifp=dataclasses.replace(EXPERIMENT_IFP, total_env_steps=2_000_000),
         showcase_goals=_clevr_showcase_goals,
+        train_patterns=9,
+        paper_margin=13.4,
     )
 )
 
@@ -238,5 +249,7 @@ register_recipe(
         talar=KITCHEN_TALAR,
         ifp=KITCHEN_IFP,
         env_options=KITCHEN_ENV_OPTIONS,
+        per_goal_report=True,
+        paper_margin=63.2,
     )
 )

@@ -39,20 +39,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 import tyro
 
-from experiments.cli import valid_or_exit
+from experiments.cli import CLI_CONFIG, valid_or_exit
 from experiments.compare import env_option
-from experiments.pipeline import (
-    CLI_CONFIG,
-    ExperimentConfig,
-    check_inputs,
-    default_config,
-    finished_summary,
-    ifp_result,
-    learning_curve,
-    run,
-    stage_oracle_key,
-)
+from experiments.config import ExperimentConfig, default_config
+from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
 from experiments.recipes import recipe_names
+from experiments.reports import ifp_result, learning_curve
 from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.language import build_cache

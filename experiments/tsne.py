@@ -21,9 +21,9 @@ import numpy as np
 import tyro
 
 from experiments.instruct import agent_command
-from experiments.methods import METHOD_LABELS
-from experiments.pipeline import trained_codes
+from experiments.methods import method_label
 from experiments.recipes import get_recipe
+from experiments.reports import trained_codes
 from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
 from talar_jax.checkpoint import write_json_atomic
@@ -93,7 +93,7 @@ def write_tsne_grid(folders: Sequence[Path], path: Path, seed: int = 0) -> tuple
     for folder, config in configs.items():
         if not 0 <= seed < int(config["seeds"]):
             raise AgentError(f"--seed must lie in 0..{int(config['seeds']) - 1} for {folder}, got {seed}")
-        label = METHOD_LABELS.get(config["method"], config["method"])
+        label = method_label(config["method"])
         codes = trained_codes(folder, seed)
         if codes is None:
             skipped.append(label)

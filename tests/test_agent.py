@@ -9,22 +9,102 @@ import orbax.checkpoint as ocp
 import pytest
 
 from experiments import generalize, instruct, tsne
-from experiments.pipeline import trained_codes
+from experiments.reports import trained_codes
+from talar_jax import encodings
 from talar_jax.agent import Agent, AgentError, _latest_policy_params, load
 from talar_jax.baselines import AlignedEncodingLayer
-from talar_jax.language import load_user_instructions, readout_features
+from talar_jax.checkpoint import save_tree
+from talar_jax.encodings import ENCODING_FILE, EncodingArtifact, EncodingError, ParamsSource, register_encoding_kind
+from talar_jax.language import TOKEN_READOUT, load_user_instructions, readout_features
 from talar_jax.task_language import TaskLanguageSpec
 
 
+def talar_encoding(config: dict) -> EncodingArtifact:
+    """The encoding record of a TALAR run of ``config`` (its translator, in ``talar/translator``)."""
+    talar = config["talar"]
+    readout = TOKEN_READOUT if talar.get("translator_tokens", False) else config["sentence_readout"]
+    spec = TaskLanguageSpec(**talar["spec"])
+    return EncodingArtifact.translator(
+        spec, tuple(talar["translator_hidden"]), readout, "talar/translator/params.msgpack"
+    )
+
+
 @pytest.fixture(scope="module")
-def agent(clevr_run):
-    out, _ = clevr_run
+def talar_run(clevr_run):
+    """The TALAR fixture run with its encoding record (written here, as the pipeline writes it, when missing)."""
+    out, summary = clevr_run
+    if not (out / "talar" / ENCODING_FILE).is_file():
+        talar_encoding(json.loads((out / "talar" / "config.json").read_text())).write(out / "talar")
+    return out, summary
+
+
+def _finished_run(folder, config, method):
+    """A method folder whose ifp stage is finished, with ``config`` naming ``method``."""
+    (folder / "ifp").mkdir(parents=True)
+    (folder / "ifp" / "stage.json").write_text("{}")
+    (folder / "config.json").write_text(json.dumps({**config, "method": method}))
+
+
+def _save_policy(out, folder, conditioner=None):
+    """The TALAR fixture's seed-stacked policy in ``folder``'s checkpoint (with a ``conditioner`` entry if given)."""
+    policy = {k: v for k, v in _latest_policy_params(out / "talar" / "ifp" / "ppo").items() if k != "conditioner"}
+    extra = {} if conditioner is None else {"conditioner": conditioner}
+    with ocp.CheckpointManager((folder / "ifp" / "ppo" / "checkpoints").absolute()) as manager:
+        manager.save(7, args=ocp.args.StandardSave({"params": {**policy, **extra}}))
+        manager.wait_until_finished()
+
+
+@pytest.fixture(scope="module")
+def agent(talar_run):
+    out, _ = talar_run
     return load(out, seed=1)
 
 
-def test_agent_reads_sentences_as_the_run_did_and_acts(agent, clevr_run):
-    out, _ = clevr_run
+def test_encoding_records_round_trip_through_json():
+    spec = TaskLanguageSpec(num_predicates=4, num_arguments=2, arg_size=5)
+    translator = EncodingArtifact.translator(
+        spec, (256, 256), "tokens", "end-to-end/joint/params.msgpack", "translator"
+    )
+    assert translator.to_json() == {
+        "kind": "translator",
+        "readout": "tokens",
+        "code_size": 14,
+        "spec": {"num_predicates": 4, "num_arguments": 2, "arg_size": 5},
+        "hidden": [256, 256],
+        "binary": True,
+        "continuous": False,
+        "params": {"source": "file", "path": "end-to-end/joint/params.msgpack", "entry": "translator"},
+        "unreadable_reason": None,
+    }
+    records = [
+        translator,
+        EncodingArtifact.nl_encoding_layer(14, binary=False, readout="sentence"),
+        EncodingArtifact.aligned_encoding_layer(spec, (128, 128), binary=True, readout="sentence+prefixes"),
+        EncodingArtifact.unreadable("a One-hot run has a code per training instruction", readout="sentence"),
+    ]
+    for record in records:
+        assert EncodingArtifact.from_json(json.loads(json.dumps(record.to_json()))) == record
+    layer = records[1].to_json()
+    assert (
+        layer["continuous"] and not layer["binary"] and layer["params"] == {"source": "policy", "entry": "conditioner"}
+    )
+    assert records[3].to_json()["params"] is None and not records[3].readable
+    with pytest.raises(EncodingError, match="unknown keys"):
+        EncodingArtifact.from_json({**translator.to_json(), "method": "talar"})
+    with pytest.raises(EncodingError, match="unknown readout"):
+        EncodingArtifact.from_json({**translator.to_json(), "readout": "words"})
+    with pytest.raises(EncodingError, match="code_size 13 is not the size 14"):
+        EncodingArtifact.from_json({**translator.to_json(), "code_size": 13})
+    with pytest.raises(EncodingError, match="relative to the run root"):
+        ParamsSource.file("/abs/params.msgpack")
+    with pytest.raises(EncodingError, match="needs an unreadable_reason"):
+        EncodingArtifact("none", "sentence", 0)
+
+
+def test_agent_reads_sentences_as_the_run_did_and_acts(agent, talar_run):
+    out, _ = talar_run
     assert agent.method == "talar" and agent.folder == out / "talar" and agent.seed == 1
+    assert agent.encoding == talar_encoding(agent.config) and not agent.continuous_codes
     # The features of cached sentences are the cache's (train and test rows), and so are their codes.
     rows = [0, 5, 719, 720, 1439]
     sentences = [agent.cache.sentences[r] for r in rows]
@@ -57,26 +137,24 @@ def test_agent_reads_sentences_as_the_run_did_and_acts(agent, clevr_run):
     np.testing.assert_array_equal(success, agent.success_rate(codes, goals, jax.random.key(2)))
 
 
-def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent, clevr_run, tmp_path):
-    """An aligned BERT-binary run (Fig. 12): the agent rebuilds the TL generator's networks from the run's config and
-    reads the seed's encoding layer from the policy checkpoint. The run here is the TALAR fixture's policy with an
-    aligned layer of known parameters (seed-stacked as training stores them) put in its checkpoint."""
-    out, _ = clevr_run
+def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent, talar_run, tmp_path):
+    """An aligned BERT-binary run (Fig. 12): the agent rebuilds the TL generator's networks from the run's encoding
+    record and reads the seed's encoding layer from the policy checkpoint. The run here is the TALAR fixture's policy
+    with an aligned layer of known parameters (seed-stacked as training stores them) put in its checkpoint."""
+    out, _ = talar_run
     config = json.loads((out / "talar" / "config.json").read_text())
     folder = tmp_path / "aligned" / "aligned-bert-binary"
-    (folder / "ifp").mkdir(parents=True)
-    (folder / "ifp" / "stage.json").write_text("{}")
-    (folder / "config.json").write_text(json.dumps({**config, "method": "aligned-bert-binary"}))
+    _finished_run(folder, config, "aligned-bert-binary")
     spec = TaskLanguageSpec(**config["talar"]["spec"])
-    layer = AlignedEncodingLayer(spec, tuple(config["talar"]["generator_hidden"]), binary=True)
+    hidden = tuple(config["talar"]["generator_hidden"])
+    EncodingArtifact.aligned_encoding_layer(spec, hidden, binary=True, readout=config["sentence_readout"]).write(folder)
+    layer = AlignedEncodingLayer(spec, hidden, binary=True)
     features = readout_features(agent.cache, config["sentence_readout"], agent.encoder)
     keys = jax.random.split(jax.random.key(3), config["seeds"])
     stacked = jax.vmap(lambda key: layer.init(key, features[:1]))(keys)
-    policy = {k: v for k, v in _latest_policy_params(out / "talar" / "ifp" / "ppo").items() if k != "conditioner"}
-    with ocp.CheckpointManager((folder / "ifp" / "ppo" / "checkpoints").absolute()) as manager:
-        manager.save(7, args=ocp.args.StandardSave({"params": {**policy, "conditioner": stacked}}))
-        manager.wait_until_finished()
+    _save_policy(out, folder, conditioner=stacked)
     aligned = Agent(folder, seed=1)
+    assert not aligned.continuous_codes and "conditioner" not in aligned._policy_params
     expected = np.asarray(layer.apply(jax.tree.map(lambda x: x[1], stacked), features, None))
     rows = [0, 5, 719, 720, 1439]
     np.testing.assert_allclose(aligned.translate([aligned.cache.sentences[r] for r in rows]), expected[rows], atol=1e-6)
@@ -90,8 +168,8 @@ def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent
     assert 1 <= episode.length <= aligned.env.episode_length
 
 
-def test_instruct_prints_the_code_and_success_and_writes_a_video(clevr_run, tmp_path, capsys):
-    out, _ = clevr_run
+def test_instruct_prints_the_code_and_success_and_writes_a_video(talar_run, tmp_path, capsys):
+    out, _ = talar_run
     video = tmp_path / "episode.gif"
     result = instruct.main(
         [str(out), "move the red ball left of the blue ball", "--episodes", "4", "--goal", "3", "--video", str(video)]
@@ -104,8 +182,8 @@ def test_instruct_prints_the_code_and_success_and_writes_a_video(clevr_run, tmp_
     assert video.stat().st_size > 0 and result["video"] == str(video)
 
 
-def test_generalize_on_the_test_patterns_reproduces_the_tables_agreement(clevr_run, tmp_path, capsys):
-    out, _ = clevr_run
+def test_generalize_on_the_test_patterns_reproduces_the_tables_agreement(talar_run, tmp_path, capsys):
+    out, _ = talar_run
     mine = tmp_path / "mine.json"
     mine.write_text(
         json.dumps(
@@ -138,8 +216,8 @@ def _error(capsys, main, argv) -> str:
     return lines[0]
 
 
-def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
-    out, _ = clevr_run
+def test_bad_input_gets_one_line(talar_run, tmp_path, capsys):
+    out, _ = talar_run
     assert "is empty" in _error(capsys, instruct.main, [str(out), "   "])
     assert "does not exist" in _error(capsys, instruct.main, [str(tmp_path / "nowhere"), "go"])
     assert ".gif or .mp4" in _error(capsys, instruct.main, [str(out), "go", "--video", str(tmp_path / "v.avi")])
@@ -147,19 +225,6 @@ def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
     (unfinished / "talar" / "ifp").mkdir(parents=True)
     shutil.copy(out / "talar" / "config.json", unfinished / "talar" / "config.json")
     assert "not finished" in _error(capsys, instruct.main, [str(unfinished), "go"])
-    onehot = tmp_path / "onehot" / "onehot"
-    (onehot / "ifp").mkdir(parents=True)
-    (onehot / "ifp" / "stage.json").write_text("{}")
-    config = json.loads((out / "talar" / "config.json").read_text())
-    (onehot / "config.json").write_text(json.dumps({**config, "method": "onehot"}))
-    with pytest.raises(AgentError, match="One-hot"):
-        Agent(onehot)
-    finetuned = tmp_path / "finetuned" / "finetuned-bert-binary"
-    (finetuned / "ifp").mkdir(parents=True)
-    (finetuned / "ifp" / "stage.json").write_text("{}")
-    (finetuned / "config.json").write_text(json.dumps({**config, "method": "finetuned-bert-binary"}))
-    with pytest.raises(AgentError, match="'finetuned-bert-binary' has no sentence encoding an agent can use"):
-        Agent(finetuned)
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"clevr_patterns": ["move the {subject} ball"], "kitchen": {"fridge": ["open it"]}}))
     assert "placeholders" in _error(capsys, generalize.main, [str(out), "--instructions", str(bad)])
@@ -168,6 +233,83 @@ def test_bad_input_gets_one_line(clevr_run, tmp_path, capsys):
     only_kitchen = tmp_path / "kitchen.json"
     only_kitchen.write_text(json.dumps({"kitchen": {"kettle": ["move the kettle"]}}))
     assert "no 'clevr_patterns'" in _error(capsys, generalize.main, [str(out), "--instructions", str(only_kitchen)])
+
+
+def test_a_run_whose_record_says_it_cannot_read_sentences_raises_the_records_reason(talar_run, tmp_path, capsys):
+    out, _ = talar_run
+    config = json.loads((out / "talar" / "config.json").read_text())
+    reasons = {
+        "onehot": "a One-hot run gives every training sentence its own code and has no way to read a new sentence",
+        "finetuned-bert-binary": "a fine-tuned BERT run's encoder is its own; the agent has no way to read it",
+    }
+    for method, reason in reasons.items():
+        folder = tmp_path / method / method
+        _finished_run(folder, config, method)
+        EncodingArtifact.unreadable(reason, readout=config["sentence_readout"]).write(folder)
+        with pytest.raises(AgentError) as error:
+            Agent(folder)
+        assert str(error.value) == reason
+        assert reason in _error(capsys, instruct.main, [str(folder), "go"])
+    assert trained_codes(tmp_path / "onehot" / "onehot") is None
+
+
+def test_a_run_without_an_encoding_record_asks_to_rerun_its_command(talar_run, tmp_path, capsys):
+    out, _ = talar_run
+    old = tmp_path / "old" / "talar"
+    _finished_run(old, json.loads((out / "talar" / "config.json").read_text()), "talar")
+    with pytest.raises(AgentError, match="predates the encoding record .* rerun its command") as error:
+        Agent(old)
+    assert len(str(error.value).splitlines()) == 1
+    assert "predates the encoding record" in _error(capsys, instruct.main, [str(old), "go"])
+    (old / ENCODING_FILE).write_text(json.dumps({"kind": "translator"}))
+    with pytest.raises(AgentError, match="missing keys code_size, readout"):
+        Agent(old)
+
+
+def test_an_encoding_kind_registered_outside_the_library_is_what_the_agent_uses(
+    agent, talar_run, tmp_path, monkeypatch
+):
+    """A kind the library does not know (a sign probe on the sentence features, its seed-stacked weights in a file
+    of the run root under an entry): the agent builds it through the registry and acts on its codes."""
+    out, _ = talar_run
+    monkeypatch.setattr(encodings, "_KINDS", dict(encodings._KINDS))  # the registration ends with the test
+    config = json.loads((out / "talar" / "config.json").read_text())
+    root = tmp_path / "probe-run"
+    folder = root / "sign-probe"
+    _finished_run(folder, config, "sign-probe")
+    _save_policy(out, folder)
+    features = readout_features(agent.cache, config["sentence_readout"], agent.encoder)
+    weights = np.random.default_rng(0).normal(size=(config["seeds"], features.shape[-1], agent.code_size))
+    (folder / "probe").mkdir()
+    save_tree(folder / "probe" / "params.msgpack", {"probe": {"w": weights.astype(np.float32)}})
+    record = EncodingArtifact(
+        "sign-probe",
+        config["sentence_readout"],
+        agent.code_size,
+        binary=True,
+        params=ParamsSource.file("sign-probe/probe/params.msgpack", entry="probe"),
+    )
+    record.write(folder)
+    assert EncodingArtifact.read(folder) == record
+    with pytest.raises(AgentError, match="encoding kind 'sign-probe' is not registered"):
+        Agent(folder, seed=1)
+    built = []
+
+    def build(artifact, params):
+        built.append(artifact)
+        return lambda x: (x @ params["w"] > 0).astype(np.float32)
+
+    register_encoding_kind("sign-probe", build)
+    with pytest.raises(ValueError, match="already registered"):
+        register_encoding_kind("sign-probe", build)
+    probe = Agent(root, seed=1)
+    assert built == [record] and probe.folder == folder and probe.code_size == agent.code_size
+    rows = [0, 5, 719, 720, 1439]
+    expected = (features[rows] @ weights[1] > 0).astype(np.float32)
+    np.testing.assert_allclose(probe.translate([probe.cache.sentences[r] for r in rows]), expected)
+    np.testing.assert_allclose(trained_codes(folder, seed=1), (features @ weights[1] > 0).astype(np.float32))
+    episode = probe.rollout(probe.cache.sentences[0], jax.random.key(1), goal=int(probe.cache.goal_ids[0]))
+    assert 1 <= episode.length <= probe.env.episode_length
 
 
 def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path, capsys, monkeypatch):

@@ -13,8 +13,9 @@ import pytest
 import tyro
 
 from experiments import clevr, kitchen
+from experiments.cli import CLI_CONFIG
 from experiments.compare import CompareArgs, base_config, compare, parse_args
-from experiments.pipeline import CLI_CONFIG, ExperimentConfig, default_config, resolve
+from experiments.config import ExperimentConfig, default_config, resolve
 from tests.conftest import QUICK, TINY_BERT
 
 

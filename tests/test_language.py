@@ -508,28 +508,50 @@ def test_default_encoder_kitchen_cache_separates_goals(tmp_path):
     assert cache.vocab_size == len(set(cache.prefix_next_token.tolist())) > 50
 
 
-def test_a_third_env_registers_how_its_instructions_are_read(tmp_path):
+@pytest.fixture
+def point_env_registered(monkeypatch):
+    """The point env of tests/point_env.py registered as a third env package would be, removed afterwards."""
+    import envs
+    from envs import registry
+    from tests import point_env
+
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    monkeypatch.setattr(registry, "_INSTRUCTION_FORMATS", dict(registry._INSTRUCTION_FORMATS))
+    point_env.register()
+    yield envs
+    monkeypatch.undo()
+    assert "point" not in envs.registered_names() and "point" not in envs.instruction_envs()
+
+
+def test_a_third_env_package_supplies_its_own_instruction_format(point_env_registered, tmp_path):
+    """The point env says how its instructions are read from its own module (no talar_jax import, no talar_jax
+    edit): the language layer finds them by env name, for the env and its variant."""
     from talar_jax.language import InstructionFormat, load_user_instructions, register_instruction_format
-    from talar_jax.language import instructions as instructions_module
+    from tests import point_env
 
-    data = tmp_path / "toy.json"
-    data.write_text('{"toy": {"train": ["go left", "go right"], "test": ["head left", "head right"]}}')
+    envs = point_env_registered
+    assert envs.instruction_format("point-continuous") is point_env.INSTRUCTION_FORMAT
+    assert envs.make("point-continuous").config.continuous and not envs.make("point").config.continuous
+    train, test = load_instructions("point", "train"), load_instructions("point-continuous", "test")
+    assert train.env == test.env == "point" and train.num_goals == 4
+    assert test.sentences[0] == "head for the upper right corner" and test.sentence_ids.tolist() == [4, 5, 6, 7]
+    assert test.goal_ids.tolist() == [0, 1, 2, 3] and test.goal_sentence_counts.tolist() == [1, 1, 1, 1]
+    assert load_instructions("point", "all").num_goals == 4
+    with pytest.raises(ValueError, match="takes no user instruction files"):
+        load_user_instructions(point_env.INSTRUCTIONS_FILE, "point")
 
-    def read(content, path):
-        section = content["toy"]
-        return {split: (section[split], [0, 1]) for split in ("train", "test")}
+    # the language layer's register_instruction_format is the registry's: it can override a format
+    data = tmp_path / "point.json"
+    data.write_text('{"point": {"train": ["left", "right"], "test": ["go left", "go right"]}}')
+    two_goals = InstructionFormat(2, lambda content, path: {k: (v, [0, 1]) for k, v in content["point"].items()})
+    register_instruction_format("point", two_goals)
+    overridden = load_instructions("point", "all", instructions_file=data)
+    assert overridden.sentences == ("left", "right", "go left", "go right") and overridden.num_goals == 2
 
-    register_instruction_format("toy", InstructionFormat(2, read, aliases=("toy-hard",), default_file=data))
-    try:
-        test = load_instructions("toy-hard", "test")
-        assert test.sentences == ("head left", "head right") and test.sentence_ids.tolist() == [2, 3]
-        assert load_instructions("toy", "all").num_goals == 2
-        with pytest.raises(ValueError, match="takes no user instruction files"):
-            load_user_instructions(data, "toy")
-    finally:
-        instructions_module._FORMATS.pop("toy")
-    with pytest.raises(ValueError, match="unknown env 'toy'"):
-        load_instructions("toy", "train")
+
+def test_an_unregistered_env_has_no_instructions():
+    with pytest.raises(ValueError, match="unknown env 'point' for instructions; valid: clevr, clevr-arrangement, "):
+        load_instructions("point", "train")
 
 
 @pytest.mark.parametrize("env", ["clevr", "kitchen"])
@@ -592,8 +614,8 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     import dataclasses
     import types
 
-    from experiments import methods
-    from experiments.pipeline import default_config, resolve
+    from experiments.config import default_config, resolve
+    from experiments.methods import MethodContext, translation
     from talar_jax.talar import make_task_language_data
     from tests.conftest import TINY_BERT
 
@@ -609,15 +631,15 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     talar = dataclasses.replace(config.talar, translator_paraphrases=3, translator_tokens=tokens)
     config = dataclasses.replace(config, talar=talar)
     data = make_task_language_data(dataset, cache, config.sentence_readout)
-    encoded, real = [], methods.cached_sentence_features
+    encoded, real = [], translation.cached_sentence_features
 
     def recording(encoder, sentences, *args, **kwargs):
         encoded.extend(sentences)
         return real(encoder, sentences, *args, cache_dir=cache_dir, **kwargs)
 
-    monkeypatch.setattr(methods, "cached_sentence_features", recording)
-    ctx = methods.MethodContext(config, "", data, cache, dataset, None)
-    augmented = methods.paraphrased_data(ctx)
+    monkeypatch.setattr(translation, "cached_sentence_features", recording)
+    ctx = MethodContext(config, "", data, cache, dataset, None)
+    augmented = translation.paraphrased_data(ctx)
     num_sentences = len(cache.sentences)
     assert len(encoded) == 3 * len(train_rows)
     assert augmented.sentence_embeddings.shape[0] == num_sentences + 3 * len(train_rows)
@@ -634,7 +656,7 @@ def test_translator_paraphrases_come_from_the_datasets_training_sentences_only(m
     assert not {s.lower() for s in encoded} & held
     # without paraphrases the translator reads the data unchanged (the paper's translator)
     plain = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_paraphrases=0))
-    unchanged = methods.paraphrased_data(dataclasses.replace(ctx, config=plain))
+    unchanged = translation.paraphrased_data(dataclasses.replace(ctx, config=plain))
     if tokens:
         np.testing.assert_array_equal(unchanged.sentence_embeddings, ctx.translator_data().sentence_embeddings)
     else:

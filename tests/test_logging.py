@@ -10,7 +10,7 @@ pytest.importorskip("tensorboardX")
 
 from tensorboardX.proto import event_pb2  # noqa: E402
 
-from experiments.pipeline import ExperimentConfig, resolve  # noqa: E402
+from experiments.config import ExperimentConfig, resolve  # noqa: E402
 from talar_jax.logging import TensorBoardLogger  # noqa: E402
 
 
@@ -41,7 +41,7 @@ def test_tensorboard_logger_writes_means_and_seeds(tmp_path):
 
 
 def test_tensorboard_option_is_not_part_of_the_policy_key():
-    from experiments.pipeline import KEY_EXCLUDED_FIELDS
+    from experiments.config import KEY_EXCLUDED_FIELDS
 
     assert "tensorboard" in KEY_EXCLUDED_FIELDS
     assert resolve(ExperimentConfig(env="clevr", tensorboard=True)).tensorboard

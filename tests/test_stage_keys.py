@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from experiments.methods import METHODS
-from experiments.pipeline import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, resolve, stage_keys
+from experiments.config import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, resolve
+from experiments.methods import method_names
+from experiments.pipeline import stage_keys
 from talar_jax.ppo import PPOConfig
 from talar_jax.talar import TalarConfig
 from talar_jax.task_language import TaskLanguageSpec
@@ -96,7 +97,7 @@ PARAPHRASE_READS = {
 # ... read only with paraphrases on (CLEVR's recipe has them on; the next tests)
 
 
-@pytest.mark.parametrize("method", list(METHODS))
+@pytest.mark.parametrize("method", list(method_names()))
 def test_the_ifp_reruns_when_any_setting_changes_and_not_for_out_or_progress(method):
     base = default_config("clevr", method=method, physics="c")
     reference = _keys(base)
@@ -143,7 +144,7 @@ def test_the_token_readout_reruns_every_translator_and_no_nl_encoding_baseline(e
         return _keys(dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_tokens=tokens)))
 
     rerun = {"talar/translator", "handcrafted/translator", "gla/translator", "end-to-end/joint"}
-    for method in METHODS:
+    for method in method_names():
         off, on = keys(method, False), keys(method, True)
         for stage in off:
             if stage != "ifp":
@@ -196,7 +197,7 @@ def test_behaviour_cloning_keeps_its_budget_when_a_recipe_pins_it_and_the_transl
 
 def test_the_finetuned_bert_layers_reach_only_the_finetuned_baselines():
     """``talar.finetuned_bert_first_layer`` is read by the fine-tuned BERT-* encodings alone."""
-    for method in METHODS:
+    for method in method_names():
         base = default_config("kitchen", method=method, physics="c")
         top = dataclasses.replace(base, talar=dataclasses.replace(base.talar, finetuned_bert_first_layer=5))
         for stage, key in _keys(base).items():
@@ -224,7 +225,7 @@ def test_a_study_setting_equal_to_the_recipe_has_the_recipe_runs_keys():
 
 def test_nine_patterns_are_the_full_training_set_and_the_same_run():
     """Table 3's 9-pattern column is the compare command's run (same keys and folder), 5 patterns another."""
-    from experiments.pipeline import run_name
+    from experiments.config import run_name
 
     base = default_config("clevr", physics="c")
     nine, five = resolve(dataclasses.replace(base, num_patterns=9)), resolve(dataclasses.replace(base, num_patterns=5))

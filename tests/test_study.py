@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from experiments import study
-from experiments.pipeline import default_config
+from experiments.config import default_config
 from tests.conftest import QUICK, TINY_BERT
 
 
