@@ -29,6 +29,7 @@ import tyro
 
 import envs
 from experiments.cli import valid_or_exit
+from experiments.config import QUICK_PPO_ENV_STEPS, quick_ppo
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
@@ -83,14 +84,7 @@ def oracle_ppo_config(args: OracleArgs) -> PPOConfig:
     """The PPO config of an oracle run (defaults from Table 2; budget from the env recipe)."""
     total = args.total_env_steps or get_recipe(args.env).oracle_env_steps
     if args.quick:
-        return PPOConfig(
-            num_envs=16,
-            rollout_length=32,
-            total_env_steps=total if args.total_env_steps else 10_240,
-            updates_per_chunk=5,
-            eval_episodes=32,
-            seed=args.seed,
-        )
+        return quick_ppo(PPOConfig(seed=args.seed), args.total_env_steps or QUICK_PPO_ENV_STEPS)
     return PPOConfig(
         num_envs=args.num_envs,
         rollout_length=args.rollout_length,
