@@ -1,9 +1,6 @@
 """Benchmarks (``python -m benchmarks.<name>``): print a table and write JSON.
 
-Importing this package sets the CPU XLA flag MJX needs before JAX starts (see README). The compile cache stays
-off here: benchmarks report compile time.
+Importing this package sets nothing up: each benchmark's ``main()`` first calls ``talar_jax.runtime.configure`` (the
+CPU XLA flag MJX needs, before JAX starts; see README). Most keep the compile cache off, since they report compile
+time.
 """
-
-from talar_jax.runtime import configure
-
-configure(compile_cache=False)

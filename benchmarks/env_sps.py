@@ -22,6 +22,7 @@ import numpy as np
 
 import envs
 from benchmarks.original_style import original_steps_per_second
+from talar_jax import runtime
 
 RESULTS_DIR = Path(__file__).parent / "results"
 
@@ -141,6 +142,7 @@ def print_table(results: dict) -> None:
 
 
 def main() -> None:
+    runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="clevr", choices=sorted(BENCH_CONFIGS))
     parser.add_argument("--quick", action="store_true", help="short timing windows, first two batch sizes only")

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.env_sps import BENCH_CONFIGS, RESULTS_DIR, time_backend
+from talar_jax import runtime
 
 BEFORE_COMMIT = "3ffadf1"
 VARIANTS = {
@@ -48,6 +49,7 @@ def _time_before(worktree: Path, physics: str, batch: int, seconds: float) -> fl
 
 
 def main() -> None:
+    runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one round, short timing windows")
     parser.add_argument("--repeats", type=int, default=3)

@@ -23,6 +23,7 @@ import numpy as np
 
 import envs
 from benchmarks.machine import machine_info
+from talar_jax import runtime
 from talar_jax.conditioning import GoalOneHotConditioner
 from talar_jax.ppo import PPOConfig, derive, make_train
 
@@ -122,6 +123,7 @@ def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
 
 
 def main() -> None:
+    runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"])
     parser.add_argument("--physics", nargs="+", default=["c", "mjx"])
