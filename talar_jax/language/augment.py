@@ -58,6 +58,140 @@ def function_words(sentences: Sequence[str], goal_ids: Sequence[int], function_f
     return {w for w, goals in goals_of.items() if w[0].isalnum() and len(goals) > function_fraction * num_goals}
 
 
+def _function_word_neighbours(tokenised: Sequence[list[str]], function: set[str]) -> dict[tuple[str, str], set[str]]:
+    """("L", left word) / ("R", right word) -> the function words seen with that neighbour ("^" / "$": none)."""
+    neighbours: dict[tuple[str, str], set[str]] = defaultdict(set)
+    for tokens in tokenised:
+        for i, word in enumerate(tokens):
+            if word in function:
+                neighbours["L", tokens[i - 1] if i else "^"].add(word)
+                neighbours["R", tokens[i + 1] if i + 1 < len(tokens) else "$"].add(word)
+    return neighbours
+
+
+class _Editor:
+    """The edits of ``paraphrase_variants`` over one set of training sentences; each draws from the caller's rng.
+
+    An edit that does not apply (no function word to drop, no same-goal sentence to splice, ...) returns the tokens
+    unchanged.
+    """
+
+    def __init__(
+        self,
+        tokenised: list[list[str]],
+        goal_ids: list[int],
+        function: set[str],
+        unknown_words: Sequence[str],
+        front_phrases: bool,
+    ):
+        self.tokenised = tokenised
+        self.goal_ids = goal_ids
+        self.function = function
+        self.function_list = sorted(function)
+        self.neighbours = _function_word_neighbours(tokenised, function)
+        self.same_goal: dict[int, list[int]] = defaultdict(list)
+        for row, goal in enumerate(goal_ids):
+            self.same_goal[goal].append(row)
+        self.unknown = sorted(set(unknown_words) - {w for tokens in tokenised for w in tokens})
+        self.edits = tuple(e for e in EDITS if (e != "replace" or self.unknown) and (e != "front" or front_phrases))
+
+    def is_content(self, word: str) -> bool:
+        return word[0].isalnum() and word not in self.function and word not in self.unknown
+
+    def edit(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        """One random edit of ``tokens`` (a variant of training sentence ``row``)."""
+        kind = self.edits[rng.integers(len(self.edits))]
+        apply = {
+            "drop": self._drop,
+            "insert": self._insert,
+            "substitute": self._substitute,
+            "swap": self._swap,
+            "splice": self._splice,
+            "replace": self._replace,
+            "front": self._front,
+        }[kind]
+        return apply(tokens, row, rng)
+
+    def _function_spots(self, tokens: list[str]) -> list[int]:
+        return [i for i, w in enumerate(tokens) if w in self.function]
+
+    def _drop(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        spots = self._function_spots(tokens)
+        if len(spots) > 1:
+            i = spots[rng.integers(len(spots))]
+            return tokens[:i] + tokens[i + 1 :]
+        return tokens
+
+    def _insert(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        if self.function_list:
+            i = int(rng.integers(len(tokens) + 1))
+            return tokens[:i] + [self.function_list[rng.integers(len(self.function_list))]] + tokens[i:]
+        return tokens
+
+    def _substitute(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        spots = self._function_spots(tokens)
+        if spots:
+            i = spots[rng.integers(len(spots))]
+            left, right = tokens[i - 1] if i else "^", tokens[i + 1] if i + 1 < len(tokens) else "$"
+            options = sorted((self.neighbours["L", left] | self.neighbours["R", right]) - {tokens[i]})
+            if options:
+                return tokens[:i] + [options[rng.integers(len(options))]] + tokens[i + 1 :]
+        return tokens
+
+    def _swap(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        if len(tokens) > 2:
+            i = int(rng.integers(len(tokens) - 1))
+            if tokens[i][0].isalnum() and tokens[i + 1][0].isalnum():
+                return tokens[:i] + [tokens[i + 1], tokens[i]] + tokens[i + 2 :]
+        return tokens
+
+    def _replace(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        spots = self._function_spots(tokens)
+        if spots:
+            i = spots[rng.integers(len(spots))]
+            return tokens[:i] + [self.unknown[rng.integers(len(self.unknown))]] + tokens[i + 1 :]
+        return tokens
+
+    def _front(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        if "," in tokens:  # a fronted sentence has its comma: never front twice
+            return tokens
+        end = len(tokens) - (1 if tokens and not tokens[-1][0].isalnum() else 0)
+        content = [i for i in range(end) if self.is_content(tokens[i])]
+        starts = [i for i in content[1:] if not self.is_content(tokens[i - 1])]  # later runs of content words
+        if starts:
+            return tokens[starts[0] : end] + [","] + tokens[: starts[0]] + tokens[end:]
+        return tokens
+
+    def _splice(self, tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
+        """This sentence's opening function words + a same-goal sentence from its first content word."""
+        rows = self.same_goal[self.goal_ids[row]]
+        other = self.tokenised[rows[rng.integers(len(rows))]]
+        first, other_first = (next((i for i, w in enumerate(t) if self.is_content(w)), None) for t in (tokens, other))
+        if first is not None and other_first is not None and tokens[first] == other[other_first]:
+            return tokens[:first] + other[other_first:]
+        return tokens
+
+
+def _variants_of_row(
+    editor: _Editor, row: int, num_variants: int, max_edits: int, held_out: set[tuple[str, ...]], seed: int
+) -> list[str]:
+    """The ``num_variants`` paraphrases of training sentence ``row``, drawn from its own rng ``[seed, row]``."""
+    tokens = editor.tokenised[row]
+    rng = np.random.default_rng([seed, row])
+    out = []
+    for _ in range(num_variants):
+        for _attempt in range(20):
+            current = list(tokens)
+            for _ in range(int(rng.integers(1, max_edits + 1))):
+                current = editor.edit(current, row, rng)
+            if tuple(w for w in current if w[0].isalnum()) not in held_out:
+                break
+        else:
+            current = tokens
+        out.append(join_words(current))
+    return out
+
+
 def paraphrase_variants(
     sentences: Sequence[str],
     goal_ids: Sequence[int],
@@ -95,74 +229,6 @@ def paraphrase_variants(
     tokenised = [words(s) for s in sentences]
     goal_ids = [int(g) for g in goal_ids]
     function = function_words(sentences, goal_ids, function_fraction)
-    function_list = sorted(function)
-    neighbours: dict[tuple[str, str], set[str]] = defaultdict(set)  # ("L", left word) / ("R", right word) -> words
-    for tokens in tokenised:
-        for i, word in enumerate(tokens):
-            if word in function:
-                neighbours["L", tokens[i - 1] if i else "^"].add(word)
-                neighbours["R", tokens[i + 1] if i + 1 < len(tokens) else "$"].add(word)
-    same_goal: dict[int, list[int]] = defaultdict(list)
-    for row, goal in enumerate(goal_ids):
-        same_goal[goal].append(row)
-
-    unknown = sorted(set(unknown_words) - {w for tokens in tokenised for w in tokens})
-    edits = tuple(e for e in EDITS if (e != "replace" or unknown) and (e != "front" or front_phrases))
-
-    def is_content(word: str) -> bool:
-        return word[0].isalnum() and word not in function and word not in unknown
-
-    def edit(tokens: list[str], row: int, rng: np.random.Generator) -> list[str]:
-        kind = edits[rng.integers(len(edits))]
-        spots = [i for i, w in enumerate(tokens) if w in function]
-        if kind == "drop" and len(spots) > 1:
-            i = spots[rng.integers(len(spots))]
-            return tokens[:i] + tokens[i + 1 :]
-        if kind == "insert" and function_list:
-            i = int(rng.integers(len(tokens) + 1))
-            return tokens[:i] + [function_list[rng.integers(len(function_list))]] + tokens[i:]
-        if kind == "substitute" and spots:
-            i = spots[rng.integers(len(spots))]
-            left, right = tokens[i - 1] if i else "^", tokens[i + 1] if i + 1 < len(tokens) else "$"
-            options = sorted((neighbours["L", left] | neighbours["R", right]) - {tokens[i]})
-            if options:
-                return tokens[:i] + [options[rng.integers(len(options))]] + tokens[i + 1 :]
-        if kind == "swap" and len(tokens) > 2:
-            i = int(rng.integers(len(tokens) - 1))
-            if tokens[i][0].isalnum() and tokens[i + 1][0].isalnum():
-                return tokens[:i] + [tokens[i + 1], tokens[i]] + tokens[i + 2 :]
-        if kind == "replace" and spots:
-            i = spots[rng.integers(len(spots))]
-            return tokens[:i] + [unknown[rng.integers(len(unknown))]] + tokens[i + 1 :]
-        if kind == "front" and "," not in tokens:  # a fronted sentence has its comma: never front twice
-            end = len(tokens) - (1 if tokens and not tokens[-1][0].isalnum() else 0)
-            content = [i for i in range(end) if is_content(tokens[i])]
-            starts = [i for i in content[1:] if not is_content(tokens[i - 1])]  # later runs of content words
-            if starts:
-                return tokens[starts[0] : end] + [","] + tokens[: starts[0]] + tokens[end:]
-        if (
-            kind == "splice"
-        ):  # this sentence's opening function words + a same-goal sentence from its first content word
-            other = tokenised[same_goal[goal_ids[row]][rng.integers(len(same_goal[goal_ids[row]]))]]
-            first, other_first = (next((i for i, w in enumerate(t) if is_content(w)), None) for t in (tokens, other))
-            if first is not None and other_first is not None and tokens[first] == other[other_first]:
-                return tokens[:first] + other[other_first:]
-        return tokens
-
+    editor = _Editor(tokenised, goal_ids, function, unknown_words, front_phrases)
     held_out = {tuple(w for w in words(s) if w[0].isalnum()) for s in exclude}
-    variants = []
-    for row, tokens in enumerate(tokenised):
-        rng = np.random.default_rng([seed, row])
-        out = []
-        for _ in range(num_variants):
-            for _attempt in range(20):
-                current = list(tokens)
-                for _ in range(int(rng.integers(1, max_edits + 1))):
-                    current = edit(current, row, rng)
-                if tuple(w for w in current if w[0].isalnum()) not in held_out:
-                    break
-            else:
-                current = tokens
-            out.append(join_words(current))
-        variants.append(out)
-    return variants
+    return [_variants_of_row(editor, row, num_variants, max_edits, held_out, seed) for row in range(len(tokenised))]
