@@ -5,8 +5,18 @@ kinematic chains otherwise compile into exponentially slow code); the project's 
 """
 
 from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.instructions import InstructionFormat
 from envs.physics import PHYSICS_BACKENDS, CPhysics, MjxPhysics, Physics, PhysicsState, default_backend, make_physics
-from envs.registry import get_default_config, make, model_fingerprint, register_environment, registered_names
+from envs.registry import (
+    get_default_config,
+    instruction_envs,
+    instruction_format,
+    make,
+    model_fingerprint,
+    register_environment,
+    register_instruction_format,
+    registered_names,
+)
 from envs.wrappers import (
     AutoResetWrapper,
     EpisodeWrapper,
@@ -16,7 +26,7 @@ from envs.wrappers import (
     wrap_for_training,
 )
 
-# Env packages register themselves on import.
+# Env packages register themselves (and their instruction formats) on import.
 from envs import clevr as _clevr  # noqa: E402,F401  isort: skip
 from envs import kitchen as _kitchen  # noqa: E402,F401  isort: skip
 
@@ -44,6 +54,7 @@ __all__ = [
     "Env",
     "EnvConfig",
     "EpisodeWrapper",
+    "InstructionFormat",
     "MjxPhysics",
     "Physics",
     "PhysicsState",
@@ -52,10 +63,13 @@ __all__ = [
     "Wrapper",
     "default_backend",
     "get_default_config",
+    "instruction_envs",
+    "instruction_format",
     "make",
     "make_physics",
     "model_fingerprint",
     "register_environment",
+    "register_instruction_format",
     "to_gymnasium",
     "to_gymnasium_vector",
     "wrap_for_brax_training",

@@ -1,4 +1,4 @@
-"""The one registry of environments: names -> (env class, config overrides)."""
+"""The one registry of environments: names -> (env class, config overrides), and how their instructions are read."""
 
 from __future__ import annotations
 
@@ -7,9 +7,11 @@ import hashlib
 from typing import Any
 
 from envs.base import Env, EnvConfig, replace_config
+from envs.instructions import InstructionFormat
 from envs.physics import PHYSICS_BACKENDS
 
 _REGISTRY: dict[str, tuple[type[Env], dict[str, Any]]] = {}
+_INSTRUCTION_FORMATS: dict[str, InstructionFormat] = {}
 
 
 def register_environment(name: str, env_class: type[Env], **config_overrides: Any) -> None:
@@ -58,3 +60,27 @@ def make(name: str, *, physics: str = "mjx", **overrides: Any) -> Env:
         raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(PHYSICS_BACKENDS)}")
     config = replace_config(get_default_config(name), overrides)
     return env_class(config, physics=physics)
+
+
+def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:
+    """Makes ``env`` (and the variants named in ``instruction_format.aliases``) read its instructions this way.
+
+    An env package calls it beside its ``register_environment`` calls; calling it again for ``env`` replaces the
+    format (e.g. to read another layout of instruction file).
+    """
+    _INSTRUCTION_FORMATS[env] = instruction_format
+
+
+def instruction_envs() -> dict[str, str]:
+    """Every env or variant name with instructions -> the env whose instructions it uses."""
+    names = {env: env for env in _INSTRUCTION_FORMATS}
+    names.update({alias: env for env, fmt in _INSTRUCTION_FORMATS.items() for alias in fmt.aliases})
+    return names
+
+
+def instruction_format(env: str) -> InstructionFormat:
+    """The instruction format of an env or of one of its variants, or one clear error."""
+    names = instruction_envs()
+    if env not in names:
+        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(names))}")
+    return _INSTRUCTION_FORMATS[names[env]]

@@ -1,8 +1,14 @@
-"""A tiny goal-conditioned point env (no physics) with discrete or continuous actions, for PPO tests."""
+"""A tiny goal-conditioned point env (no physics) with discrete or continuous actions, for PPO tests.
+
+It also stands for a third env package: beside the env it describes how its instructions are read
+(``INSTRUCTION_FORMAT``, its sentences in ``tests/data/point_instructions.json``) and ``register`` does what an env
+package's ``__init__`` does, importing only ``envs``.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +16,9 @@ import numpy as np
 from flax import struct
 
 from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.instructions import InstructionFormat, SentencesByGoal, section, string_list
 from envs.physics import PhysicsState
+from envs.registry import register_environment, register_instruction_format
 
 GOALS = np.array([[0.5, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]], np.float32)  # (4, 2)
 MOVES = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], np.float32)  # (5, 2) discrete actions
@@ -80,3 +88,30 @@ class PointEnv(Env):
         return state.replace(
             data=data, obs=pos, reward=10.0 * (before - after) + success, done=success, metrics={"success": success}
         )
+
+
+INSTRUCTIONS_FILE = Path(__file__).parent / "data" / "point_instructions.json"
+
+
+def read_sentences(data: dict, path: Path) -> dict[str, SentencesByGoal]:
+    """``{"train": (sentences, goal ids), "test": ...}``: the ``point`` object lists one sentence per goal and split."""
+    found = section(data, "point", path)
+    out = {}
+    for split in ("train", "test"):
+        sentences = string_list(found.get(split), f"point.{split}", path)
+        if len(sentences) != len(GOALS):
+            raise ValueError(f"instruction file {path}: point.{split} must hold one sentence per goal ({len(GOALS)})")
+        out[split] = (sentences, list(range(len(GOALS))))
+    return out
+
+
+INSTRUCTION_FORMAT = InstructionFormat(
+    len(GOALS), read_sentences, aliases=("point-continuous",), default_file=INSTRUCTIONS_FILE
+)
+
+
+def register() -> None:
+    """Registers ``point``, its variant ``point-continuous`` and their instructions, as an env package would."""
+    register_environment("point", PointEnv)
+    register_environment("point-continuous", PointEnv, continuous=True)
+    register_instruction_format("point", INSTRUCTION_FORMAT)

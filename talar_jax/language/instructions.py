@@ -1,10 +1,13 @@
-"""Natural-language instruction sets of FrankaKitchen and CLEVR-Robot, split into train / test, with jit-ready lookups.
+"""Natural-language instruction sets of the registered envs, split into train / test, with jit-ready lookups.
 
-Sentence order (fixed, shared with the embedding cache): all training sentences first, then all test sentences.
-Kitchen: goal-major (``envs.kitchen.tasks.TASK_NAMES`` order), then the order of the data file. CLEVR: pattern-major
-(pattern p, then goal id g: row ``p * 80 + g``), so keeping the first k training patterns keeps the first ``k * 80``
-rows. ``InstructionSet.sentence_ids`` always gives a sentence's row in the full list (``split="all"``), which is also
-its row in ``build_cache(env)``.
+Each env package says how its instructions are read (an ``envs.InstructionFormat`` registered with
+``envs.register_instruction_format``); this module looks the format up by env name and knows no env.
+
+Sentence order (fixed, shared with the embedding cache): all training sentences first, then all test sentences, each
+in the order of the env's format. Kitchen: goal-major (``TASK_NAMES`` order of ``envs/kitchen/tasks.py``), then the
+order of the data file. CLEVR: pattern-major (pattern p, then goal id g: row ``p * 80 + g``), so keeping the first k
+training patterns keeps the first ``k * 80`` rows. ``InstructionSet.sentence_ids`` always gives a sentence's row in
+the full list (``split="all"``), which is also its row in ``build_cache(env)``.
 """
 
 from __future__ import annotations
@@ -12,14 +15,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import string
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from envs.clevr import tasks as clevr_tasks
-from envs.kitchen import tasks as kitchen_tasks
+from envs.instructions import InstructionFormat, SentencesByGoal
+from envs.registry import instruction_envs, instruction_format, register_instruction_format
 
 INSTRUCTIONS_FILE = Path(__file__).parent / "data" / "instructions.json"
 DEVELOPMENT_FILE = Path(__file__).parent / "data" / "development.json"
@@ -29,43 +30,20 @@ talar_jax/language/data/development.json``) and never trains anything."""
 """Package copy of the instruction data (paper Appendix D.1)."""
 
 SPLITS: tuple[str, ...] = ("train", "test", "all")
-_CLEVR_FIELDS = {"subject", "relation", "object"}
 
-SentencesByGoal = tuple[list[str], list[int]]
-
-
-@dataclasses.dataclass(frozen=True)
-class InstructionFormat:
-    """How one env's instructions are read: what a new env registers (``register_instruction_format``).
-
-    Attributes:
-        num_goals: the env's number of goal ids.
-        read: ``(json data, path) -> {"train": (sentences, goal ids), "test": ...}`` from the instruction file.
-        read_user: ``(json data, path) -> (sentences, goal ids)`` of a user's own phrasings
-            (``load_user_instructions``), or None when the env takes none.
-        aliases: other env names (variants) that share these instructions.
-        default_file: the instruction file of this env (None: the package's ``INSTRUCTIONS_FILE``).
-    """
-
-    num_goals: int
-    read: Callable[[dict, Path], dict[str, SentencesByGoal]]
-    read_user: Callable[[dict, Path], SentencesByGoal] | None = None
-    aliases: tuple[str, ...] = ()
-    default_file: Path | None = None
-
-
-_FORMATS: dict[str, InstructionFormat] = {}
-
-
-def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:
-    """Makes ``load_instructions(env, ...)`` (and the language cache) read ``env``'s instructions this way."""
-    _FORMATS[env] = instruction_format
-
-
-def _aliases() -> dict[str, str]:
-    names = {env: env for env in _FORMATS}
-    names.update({alias: env for env, fmt in _FORMATS.items() for alias in fmt.aliases})
-    return names
+__all__ = [  # InstructionFormat, SentencesByGoal and register_instruction_format are the env registry's own
+    "DEVELOPMENT_FILE",
+    "INSTRUCTIONS_FILE",
+    "SPLITS",
+    "InstructionFormat",
+    "InstructionSet",
+    "SentencesByGoal",
+    "canonical_env",
+    "goal_lookup",
+    "load_instructions",
+    "load_user_instructions",
+    "register_instruction_format",
+]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -133,10 +111,8 @@ def goal_lookup(goal_ids: np.ndarray, num_goals: int) -> tuple[np.ndarray, np.nd
 
 def canonical_env(env: str) -> str:
     """Maps an env or registered variant name to the env whose instructions it uses, with one clear error."""
-    aliases = _aliases()
-    if env not in aliases:
-        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(aliases))}")
-    return aliases[env]
+    instruction_format(env)  # the error naming the valid names
+    return instruction_envs()[env]
 
 
 def _read_json(path: Path) -> dict:
@@ -152,65 +128,6 @@ def _read_json(path: Path) -> dict:
     if not isinstance(data, dict):
         raise ValueError(f"instruction file {path} must hold a JSON object with keys 'kitchen' and 'clevr'")
     return data
-
-
-def _string_list(value: object, where: str, path: Path) -> list[str]:
-    if not isinstance(value, list) or not value or not all(isinstance(s, str) and s.strip() for s in value):
-        raise ValueError(f"instruction file {path}: {where} must be a non-empty list of non-empty strings")
-    return [s.strip() for s in value]
-
-
-def _section(data: dict, env: str, path: Path) -> dict:
-    section = data.get(env)
-    if not isinstance(section, dict):
-        raise ValueError(f"instruction file {path} has no {env!r} object")
-    return section
-
-
-def _kitchen_sentences(data: dict, path: Path) -> dict[str, tuple[list[str], list[int]]]:
-    subtasks = _section(data, "kitchen", path).get("subtasks")
-    if not isinstance(subtasks, dict) or set(subtasks) != set(kitchen_tasks.TASK_NAMES):
-        raise ValueError(
-            f"instruction file {path}: kitchen.subtasks must have exactly the keys {list(kitchen_tasks.TASK_NAMES)}"
-        )
-    out = {}
-    for split in ("train", "test"):
-        sentences, goals = [], []
-        for goal, name in enumerate(kitchen_tasks.TASK_NAMES):
-            entry = subtasks[name]
-            if not isinstance(entry, dict):
-                raise ValueError(f"instruction file {path}: kitchen.subtasks[{name!r}] must be an object")
-            listed = _string_list(entry.get(split), f"kitchen.subtasks[{name!r}].{split}", path)
-            sentences += listed
-            goals += [goal] * len(listed)
-        out[split] = (sentences, goals)
-    return out
-
-
-def _clevr_patterns(data: dict, path: Path) -> dict[str, list[str]]:
-    section = _section(data, "clevr", path)
-    patterns = {}
-    for split in ("train", "test"):
-        listed = _string_list(section.get(f"{split}_patterns"), f"clevr.{split}_patterns", path)
-        for pattern in listed:
-            _check_clevr_pattern(pattern, path)
-        patterns[split] = listed
-    return patterns
-
-
-def _clevr_sentences(patterns: list[str]) -> tuple[list[str], list[int]]:
-    sentences, goals = [], []
-    for pattern in patterns:
-        for goal in range(clevr_tasks.NUM_GOALS):
-            sentences.append(
-                pattern.format(
-                    subject=clevr_tasks.COLORS[clevr_tasks.GOAL_SOURCE[goal]],
-                    relation=clevr_tasks.RELATIONS[clevr_tasks.GOAL_RELATION[goal]][1],
-                    object=clevr_tasks.COLORS[clevr_tasks.GOAL_DESTINATION[goal]],
-                )
-            )
-            goals.append(goal)
-    return sentences, goals
 
 
 def _check_no_leak(train: list[str], test: list[str], env: str, path: Path) -> None:
@@ -247,7 +164,7 @@ def load_instructions(
     env = canonical_env(env)
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; valid: {', '.join(SPLITS)}")
-    fmt = _FORMATS[env]
+    fmt = instruction_format(env)
     path = Path(instructions_file) if instructions_file is not None else fmt.default_file or INSTRUCTIONS_FILE
     by_split = fmt.read(_read_json(path), path)
     num_goals = fmt.num_goals
@@ -298,65 +215,8 @@ def load_user_instructions(path: str | os.PathLike, env: str) -> tuple[list[str]
     env = canonical_env(env)
     path = Path(path)
     data = _read_json(path)
-    read_user = _FORMATS[env].read_user
+    read_user = instruction_format(env).read_user
     if read_user is None:
         raise ValueError(f"env {env!r} takes no user instruction files")
     sentences, goals = read_user(data, path)
     return sentences, np.array(goals, np.int32)
-
-
-def _kitchen_user_sentences(data: dict, path: Path) -> SentencesByGoal:
-    section = data.get("kitchen")
-    if section is None:
-        raise ValueError(f"instruction file {path} has no 'kitchen' entry (keys: {', '.join(data) or 'none'})")
-    if not isinstance(section, dict) or not section:
-        raise ValueError(f"instruction file {path}: 'kitchen' must map sub-task names to lists of sentences")
-    sentences, goals = [], []
-    for name, listed in section.items():
-        if name not in kitchen_tasks.TASK_NAMES:
-            raise ValueError(
-                f"instruction file {path}: unknown kitchen sub-task {name!r}; valid: "
-                f"{', '.join(kitchen_tasks.TASK_NAMES)}"
-            )
-        listed = _string_list(listed, f"kitchen[{name!r}]", path)
-        sentences += listed
-        goals += [kitchen_tasks.TASK_NAMES.index(name)] * len(listed)
-    return sentences, goals
-
-
-def _check_clevr_pattern(pattern: str, path: Path) -> None:
-    try:
-        fields = {name for _, name, _, _ in string.Formatter().parse(pattern) if name is not None}
-    except ValueError as error:
-        raise ValueError(f"instruction file {path}: clevr pattern {pattern!r} is malformed ({error})") from None
-    if fields != _CLEVR_FIELDS:
-        raise ValueError(
-            f"instruction file {path}: clevr pattern {pattern!r} must use exactly the placeholders "
-            "{subject}, {relation}, {object}"
-        )
-
-
-def _clevr_user_sentences(data: dict, path: Path) -> SentencesByGoal:
-    patterns = data.get("clevr_patterns")
-    if patterns is None:
-        raise ValueError(f"instruction file {path} has no 'clevr_patterns' entry (keys: {', '.join(data) or 'none'})")
-    patterns = _string_list(patterns, "clevr_patterns", path)
-    for pattern in patterns:
-        _check_clevr_pattern(pattern, path)
-    return _clevr_sentences(patterns)
-
-
-def _clevr_split_sentences(data: dict, path: Path) -> dict[str, SentencesByGoal]:
-    return {name: _clevr_sentences(listed) for name, listed in _clevr_patterns(data, path).items()}
-
-
-register_instruction_format(
-    "kitchen",
-    InstructionFormat(kitchen_tasks.NUM_TASKS, _kitchen_sentences, _kitchen_user_sentences, aliases=("kitchen-all",)),
-)
-register_instruction_format(
-    "clevr",
-    InstructionFormat(
-        clevr_tasks.NUM_GOALS, _clevr_split_sentences, _clevr_user_sentences, aliases=("clevr-arrangement",)
-    ),
-)
