@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from envs.clevr import tasks as clevr_tasks
-from envs.clevr.reference import ORIGINAL_XML as CLEVR_ORIGINAL_XML
+from envs.clevr.env import ORIGINAL_XML as CLEVR_ORIGINAL_XML
 
 
 class ClevrOriginalEnv:

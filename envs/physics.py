@@ -18,7 +18,6 @@ import contextlib
 import io
 import os
 import threading
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +31,6 @@ from mujoco import rollout as mj_rollout
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
-PhysicsBackend = Literal["mjx", "c"]
 PHYSICS_BACKENDS: tuple[str, ...] = ("mjx", "c")
 
 

@@ -7,7 +7,7 @@ import pytest
 
 import envs
 from envs.clevr import tasks
-from envs.clevr.reference import ORIGINAL_XML, PushSimulator
+from tests.clevr_reference import ORIGINAL_XML, PushSimulator
 
 # Four balls parked in the corners, away from the action; ball 0 (red) is the one pushed.
 CORNERS = [[-0.45, 0.55], [0.45, 0.55], [-0.45, -0.15], [0.45, -0.15]]

@@ -14,6 +14,10 @@ from envs.base import ActionSpec, Env, EnvConfig, State
 from envs.clevr import tasks
 from envs.physics import PhysicsState
 
+ORIGINAL_XML = Path(__file__).parent / "xmls" / "clevr_original.xml"
+"""The original env's free-ball model (google-research/clevr_robot_env), which the lean ``clevr.xml`` is calibrated
+against: the reference of the tests and of the original-style benchmark, never stepped by ``ClevrEnv``."""
+
 TASK_KINDS: tuple[str, ...] = ("goal", "arrangement")
 ACTION_TYPES: tuple[str, ...] = ("discrete", "collect")
 _PUSHER_QPOS = slice(2 * tasks.NUM_BALLS, 2 * tasks.NUM_BALLS + 2)  # pusher x, y in the lean model's qpos

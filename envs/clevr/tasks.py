@@ -57,7 +57,6 @@ PUSH_DIRECTIONS = np.array(
     [[1, 0], [0, 1], [-1, 0], [0, -1], [0.8, 0.8], [-0.8, 0.8], [0.8, -0.8], [-0.8, -0.8]], np.float32
 )
 PUSH_OFFSET = 0.15  # the pusher starts 0.15 * direction behind the ball centre
-BALL_RADIUS = 0.13
 
 # --- success, reward, sampling: pure JAX functions (the env composes them) ------------------------------------------
 SUCCESS_DISTANCE = 0.39  # 3 radii: the source must be this close to the destination (TALAR)

@@ -8,10 +8,7 @@ import mujoco
 import numpy as np
 
 from envs.clevr import tasks
-
-XML_DIR = Path(__file__).parent / "xmls"
-LEAN_XML = XML_DIR / "clevr.xml"
-ORIGINAL_XML = XML_DIR / "clevr_original.xml"
+from envs.clevr.env import ORIGINAL_XML
 
 
 class PushSimulator:
