@@ -2,9 +2,8 @@
 
 A recipe names the env (``envs.make``), its goals, its scripted task-dataset collector, the oracle's budgets and
 the experiment defaults of the referential game, translator and IFP. The pipeline, the oracle and the
-comparison commands read recipes only; adding a third env means an env package (``envs/``) and, here, one
-``register_recipe`` call plus one ``talar_jax.language.register_instruction_format`` call saying how its instruction
-file is read (its ``default_file`` can live beside the env).
+comparison commands read recipes only; adding a third env means an env package (``envs/``, registering the env and,
+with ``envs.register_instruction_format``, how its instruction file is read) and, here, one ``register_recipe`` call.
 """
 
 from __future__ import annotations
