@@ -15,8 +15,7 @@ the agent)."""
 REPORT_FILES = ("config.json", "results.md", "summary.json", "curves.png", "tsne.png", "deployment.png")
 """A run folder's report files (tsne.png and deployment.png only where the method has codes to show)."""
 RECORD_FILES = (*REPORT_FILES, LANGUAGE_RECORD)
-"""The method folder's files a results/ record keeps (scripts/record_result.py) and scripts/restore_record.py puts
-back."""
+"""The method folder's files a results/ record keeps and puts back (``experiments.records record`` / ``restore``)."""
 
 
 @dataclass(frozen=True)

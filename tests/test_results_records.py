@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_every_recorded_summary_states_its_budget():
     check = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "annotate_results.py"), "--check"], capture_output=True, text=True
+        [sys.executable, "-m", "experiments.records", "annotate", "--check"], capture_output=True, text=True, cwd=ROOT
     )
     assert check.returncode == 0, check.stderr
     paths = [p for p in (ROOT / "results").glob("**/*summary.json") if "final_success" in json.loads(p.read_text())]

@@ -1,6 +1,6 @@
 """Does a kitchen IFP reach its goal directly, or by doing other sub-tasks on the way?
 
-    python scripts/kitchen_side_tasks.py RUN_DIR [--seeds 0 3] [--episodes 10] [--json OUT.json]
+    python -m experiments.analysis.side_tasks RUN_DIR [--seeds 0 3] [--episodes 10] [--json OUT.json]
 
 A kitchen episode (TALAR's protocol) ends when the named sub-task succeeds or after 280 steps, and nothing is lost by
 completing other sub-tasks first. So a policy whose task language gives several sub-tasks one code can still succeed
@@ -18,15 +18,13 @@ import json
 import sys
 from pathlib import Path
 
+import jax
+import numpy as np
+
+from envs.kitchen.tasks import BONUS_THRESH, task_distances
+from experiments.reports import load_agent
 from talar_jax import runtime
-
-runtime.configure()
-
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-
-from envs.kitchen.tasks import BONUS_THRESH, task_distances  # noqa: E402
-from talar_jax.agent import AgentError, find_method_folder, load  # noqa: E402
+from talar_jax.agent import AgentError, find_method_folder
 
 
 def side_tasks(observations: np.ndarray, valid: np.ndarray, goals: np.ndarray) -> np.ndarray:
@@ -45,7 +43,7 @@ def side_tasks(observations: np.ndarray, valid: np.ndarray, goals: np.ndarray) -
 
 def seed_report(run_dir: str, seed: int, episodes: int) -> dict:
     """Code groups and, per sub-task, success, episode length and side sub-tasks over ``episodes`` episodes."""
-    agent = load(run_dir, seed=seed)
+    agent = load_agent(run_dir, seed=seed)
     if agent.env_name != "kitchen":
         raise AgentError(f"{run_dir} is a {agent.env_name} run; this probe reads kitchen sub-tasks")
     names = agent.env.task_names
@@ -68,7 +66,12 @@ def seed_report(run_dir: str, seed: int, episodes: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    runtime.start()
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.side_tasks",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("run_dir", help="a finished kitchen run folder (or its method folder)")
     parser.add_argument("--seeds", type=int, nargs="+", help="seeds to probe (default: all of the run's)")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per sub-task and seed")

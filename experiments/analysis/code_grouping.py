@@ -1,8 +1,8 @@
 """How tightly a finished run's instruction codes group by goal, per seed (used for Fig. 12's aligned baselines).
 
-    python scripts/code_grouping.py RUN_DIR
+    python -m experiments.analysis.code_grouping RUN_DIR
 
-For every seed, over the codes of the training instructions (``experiments.pipeline.trained_codes``: the translated
+For every seed, over the codes of the training instructions (``experiments.reports.trained_codes``: the translated
 TL, or the trained encoding layer of BERT-* and aligned BERT-*): the silhouette score by goal (scikit-learn; 1 = each
 goal a tight, separate group), the mean distance between two instructions of one goal over the mean distance between
 instructions of different goals, the number of distinct (rounded) codes per goal, and the share of test instructions
@@ -16,24 +16,24 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from experiments.reports import load_agent, trained_codes
+from experiments.tsne import goal_grouping as grouping
 from talar_jax import runtime
-
-runtime.configure()
-
-import numpy as np  # noqa: E402
-
-from experiments.pipeline import trained_codes  # noqa: E402
-from experiments.tsne import goal_grouping as grouping  # noqa: E402
-from talar_jax.agent import AgentError, find_method_folder, load  # noqa: E402
+from talar_jax.agent import AgentError, find_method_folder
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    runtime.start()
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.code_grouping", description=__doc__.splitlines()[0]
+    )
     parser.add_argument("run_dir")
     args = parser.parse_args(argv)
     try:
         folder = find_method_folder(args.run_dir)
-        agent = load(args.run_dir, seed=0)
+        agent = load_agent(args.run_dir, seed=0)
     except AgentError as error:
         sys.exit(f"error: {error}")
     goals, is_train = agent.cache.goal_ids, agent.cache.is_train

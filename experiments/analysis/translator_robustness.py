@@ -1,11 +1,12 @@
 """Translators with and without paraphrase augmentation, trained on a finished run's referential game, compared by
-TL agreement on the training, test and development instructions (issue: instructions phrased in ways no one trained
-on). No policy is trained: agreement is what the translator contributes.
+TL agreement on the training, test and development instructions (instructions phrased in ways no one trained on).
+No policy is trained: agreement is what the translator contributes.
 
-    python scripts/translator_robustness.py runs/kitchen-4M --env kitchen --paraphrases 0 8 16 --json out.json
+    python -m experiments.analysis.translator_robustness runs/kitchen-4M --env kitchen --paraphrases 0 8 16 \
+        --json out.json
 
 RUN is an experiment folder with ``oracle/dataset`` and ``talar/task_language/params.msgpack``; the run is assumed to
-use the env recipe's defaults (readout, TL spec, translator settings), which the script reads from ``default_config``;
+use the env recipe's defaults (readout, TL spec, translator settings), which this reads from ``default_config``;
 ``--tokens on`` / ``off`` sets whether the translators read token states (``TalarConfig.translator_tokens``).
 For every ``--paraphrases`` value (0: the paper's translator) it trains one translator per seed of the run from the
 same seed keys and prints agreement per seed and mean ± std; the translators are kept in
@@ -26,9 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments.config import default_config, resolve
 from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys, translator_readout
-from experiments.pipeline import default_config, make_task_language_data, resolve
+from experiments.reports import load_agent
+from talar_jax import runtime
 from talar_jax.agent import Agent
 from talar_jax.checkpoint import load_tree, save_tree
 from talar_jax.dataset import TaskDataset
@@ -44,6 +47,7 @@ from talar_jax.language import (
 from talar_jax.optim import fit_seeds
 from talar_jax.talar import (
     make_generate_task_language,
+    make_task_language_data,
     make_train_translator,
     make_translate,
     task_language_quality,
@@ -70,8 +74,13 @@ def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.nda
     return float(np.mean([np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> None:
+    runtime.start()
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.translator_robustness",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("run", type=Path)
     parser.add_argument("--env", required=True, choices=["clevr", "kitchen"])
     parser.add_argument("--seeds", type=int, default=5)
@@ -88,7 +97,7 @@ def main() -> None:
     )
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
     if args.steps:
@@ -187,7 +196,7 @@ def main() -> None:
                     misses += [not np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]
             if args.episodes:
                 # the run's policy, fed this translator's codes: valid while the goals keep the run's codes
-                agent = Agent(args.run / "talar", seed=seed)
+                agent = load_agent(args.run / "talar", seed=seed)
                 same = all(np.array_equal(agent.goal_code(g).round(), c) for g, c in goal_codes.items())
                 swapped = SwappedTranslator(
                     agent, lambda x, p=seed_params: np.asarray(translate(p, x))[0].round(), goal_codes

@@ -1,6 +1,6 @@
 """Soak test: every registered env, 10^6 random-action steps per physics backend (batched, with auto-reset).
 
-    python scripts/soak.py [--steps 1000000] [--batch 1000] [--envs clevr kitchen] [--physics c mjx]
+    python -m benchmarks.soak [--steps 1000000] [--batch 1000] [--envs clevr kitchen] [--physics c mjx]
 
 Reports per (env, backend): steps, non-finite counts (obs, reward, qpos, qvel), the largest joint speed, the largest
 joint-limit violation (qpos outside a limited hinge/slide joint's range) and the number of env steps where it exceeds
@@ -11,19 +11,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-import envs  # noqa: E402
+import envs
+from talar_jax import runtime
 
 BLOWUP = 0.1
 """A joint further than this (rad or m) outside its range counts as a constraint blow-up."""
@@ -116,7 +114,10 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    runtime.configure(compile_cache=False)
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.soak", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--steps", type=int, default=1_000_000)
     parser.add_argument("--batch", type=int, default=1000)
     parser.add_argument(

@@ -1,6 +1,6 @@
 """Does a sentence encoder put each kitchen development phrasing next to its own sub-task's training sentences?
 
-    python scripts/encoder_neighbours.py ENCODER_FOLDER [ENCODER_FOLDER ...]
+    python -m experiments.analysis.encoder_neighbours ENCODER_FOLDER [ENCODER_FOLDER ...]
 
 For every sentence-transformers folder given, embeds the kitchen's training instructions and our development
 phrasings (``talar_jax/language/data/development.json``; never trained on) and classifies each development phrasing
@@ -8,19 +8,21 @@ by its nearest training sentence and by its nearest sub-task centroid (cosine). 
 miss. This asks whether an encoder *could* tell the burners apart by position words the training sentences never use
 ("front", "back", "lower"): a translator trained on training sentences only cannot know more than its encoder.
 
-Runs outside the project's environment: it needs ``sentence-transformers`` (and torch), which talar-jax does not
-depend on; results/unseen-phrasings.md gives the commands used for all-MiniLM-L6-v2 and all-mpnet-base-v2.
+Runs outside the project's environment (from the checkout's root, in any Python with numpy): it needs
+``sentence-transformers`` (and torch), which talar-jax does not depend on, and imports nothing else of the project;
+results/unseen-phrasings.md gives the commands used for all-MiniLM-L6-v2 and all-mpnet-base-v2.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-DATA = Path(__file__).resolve().parents[1] / "talar_jax" / "language" / "data"
+DATA = Path(__file__).resolve().parents[2] / "talar_jax" / "language" / "data"
 
 
 def kitchen_sentences() -> tuple[list[str], list[tuple[str, str]], list[tuple[str, str]]]:
@@ -41,23 +43,27 @@ def classify(train: np.ndarray, train_goals: np.ndarray, held_out: np.ndarray) -
     return nearest, (held_out @ centroids.T).argmax(1)
 
 
-def main(argv: list[str]) -> int:
-    if not argv:
-        print("usage: python scripts/encoder_neighbours.py ENCODER_FOLDER [ENCODER_FOLDER ...]", file=sys.stderr)
-        return 2
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.encoder_neighbours",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("encoders", nargs="+", metavar="ENCODER_FOLDER", help="a sentence-transformers model folder")
+    folders = parser.parse_args(argv).encoders
     try:
         from sentence_transformers import SentenceTransformer
     except ImportError:
         print("error: this probe needs sentence-transformers (pip install sentence-transformers)", file=sys.stderr)
         return 2
-    missing = [folder for folder in argv if not Path(folder).is_dir()]
+    missing = [folder for folder in folders if not Path(folder).is_dir()]
     if missing:
         print(f"error: no such encoder folder: {missing[0]}", file=sys.stderr)
         return 2
     names, train, held_out = kitchen_sentences()
     train_goals = np.array([names.index(name) for _, name in train])
     goals = np.array([names.index(name) for _, name in held_out])
-    for folder in argv:
+    for folder in folders:
         model = SentenceTransformer(folder, device="cpu")
         embed = lambda pairs: model.encode([s for s, _ in pairs], normalize_embeddings=True)  # noqa: E731
         for label, guess in zip(
@@ -70,4 +76,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(main())

@@ -1,9 +1,9 @@
 """Compare methods' learning curves up to a common env-step budget, for a run cut short of the paper's.
 
-``python scripts/early_curves.py --until 327680 --split train "Fine-tuned BERT-continuous=runs/study/x/x"
-"BERT-continuous=results/kitchen-compare-5seeds-4M/bert-continuous" ...``
+``python -m experiments.analysis.early_curves --until 327680 --split train
+"Fine-tuned BERT-continuous=runs/study/x/x" "BERT-continuous=results/kitchen-compare-5seeds-4M/bert-continuous" ...``
 
-Each ``LABEL=FOLDER`` names a record (``scripts/record_result.py``'s ``ifp_metrics.jsonl``) or a run's method folder
+Each ``LABEL=FOLDER`` names a record (``experiments.records record``'s ``ifp_metrics.jsonl``) or a run's method folder
 (``ifp/ppo/metrics.jsonl``). PPO here has no learning-rate schedule, so the first evaluations of a longer run are those
 a run stopped at ``--until`` would have made: a reduced-budget probe can be read against the first ``--until`` env
 steps of runs at the paper's budget. Prints a markdown table: success at every evaluation up to ``--until`` (mean
@@ -73,7 +73,11 @@ def table(curves: dict[str, dict], split: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.early_curves",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
     parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
     parser.add_argument("--split", choices=("train", "test"), default="train")

@@ -1,7 +1,7 @@
 """How far a fine-tuned BERT run's encoder moved from the pre-trained weights, and whether its sentence embeddings
 still group by goal (paper Fig. 14, Appendix E.5).
 
-    python scripts/finetuned_bert_drift.py RUN_DIR [--seed 0]
+    python -m experiments.analysis.finetuned_bert_drift RUN_DIR [--seed 0]
 
 RUN_DIR is a ``finetuned-bert-*`` run (finished or not: the latest policy checkpoint is read). Prints, for one seed:
 the relative change of the trained BERT weights, ||theta - theta_0|| / ||theta_0||; and the silhouette by goal of the
@@ -18,19 +18,16 @@ import json
 import sys
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from experiments.tsne import goal_grouping as tsne_goal_grouping
 from talar_jax import runtime
-
-runtime.configure()
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from experiments.tsne import goal_grouping as tsne_goal_grouping  # noqa: E402
-from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder  # noqa: E402
-from talar_jax.baselines import FinetunedBertConditioner  # noqa: E402
-from talar_jax.language import build_cache, load_encoder  # noqa: E402
-from talar_jax.language.bert import mean_pool  # noqa: E402
+from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder
+from talar_jax.baselines import FinetunedBertConditioner
+from talar_jax.language import build_cache, load_encoder
+from talar_jax.language.bert import mean_pool
 
 
 def relative_change(tuned, pretrained) -> float:
@@ -87,7 +84,12 @@ def drift(run_dir: str | Path, seed: int = 0) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    runtime.start()
+    parser = argparse.ArgumentParser(
+        prog="python -m experiments.analysis.finetuned_bert_drift",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
