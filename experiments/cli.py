@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -18,6 +19,18 @@ def valid_or_exit(check: Callable[..., T], *args: Any) -> T:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
+
+
+def env_argument(argv: list[str] | None, default: str) -> str:
+    """The ``--env`` of a command line whose other defaults are that env's recipe (``default`` when absent).
+
+    tyro has no defaults that depend on another option's value, so the commands that take ``--env`` (compare,
+    patterns, study) read it first with argparse, which leaves every other option, ``--help`` included, to tyro.
+    """
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--env", default=default)
+    known, _ = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    return known.env
 
 
 CLI_CONFIG = (tyro.conf.AvoidSubcommands,)

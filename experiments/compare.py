@@ -17,7 +17,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
-from experiments.cli import CLI_CONFIG
+from experiments.cli import CLI_CONFIG, env_argument
 from experiments.config import ExperimentConfig, default_config, run_name
 from experiments.methods import PAPER_COMPARISON, method_label, method_names
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
@@ -61,24 +61,12 @@ def base_config(args: CompareArgs) -> ExperimentConfig:
     return config
 
 
-def env_option(argv: list[str] | None, default: str = "clevr") -> str:
-    """The value of ``--env`` on a command line (``default`` when absent), read before the full parse so that the
-    env's recipe gives the defaults of every other option."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    for index, item in enumerate(argv):
-        if item == "--env" and index + 1 < len(argv):
-            return argv[index + 1]
-        if item.startswith("--env="):
-            return item.split("=", 1)[1]
-    return default
-
-
 def parse_args(cls, argv: list[str] | None, description: str | None = None):
     """``cls`` from the command line; a comparison's experiment defaults to the recipe of its ``--env``
     (``default_config(env)``), so ``compare --env kitchen`` runs the kitchen command's settings."""
     default = None
     if cls is CompareArgs:
-        env = env_option(argv)
+        env = env_argument(argv, default="clevr")
         if env in recipe_names():
             default = CompareArgs(experiment=dataclasses.replace(default_config(env), out=None))
     return tyro.cli(cls, args=argv, default=default, description=description, config=CLI_CONFIG)

@@ -34,24 +34,15 @@ import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import matplotlib
-import matplotlib.pyplot as plt
-import numpy as np
 import tyro
 
-from experiments.cli import CLI_CONFIG, valid_or_exit
-from experiments.compare import env_option
+from experiments.cli import CLI_CONFIG, env_argument, valid_or_exit
 from experiments.config import ExperimentConfig, default_config
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
 from experiments.recipes import recipe_names
-from experiments.reports import ifp_result, learning_curve
+from experiments.study_report import write_outputs
 from talar_jax import runtime
-from talar_jax.checkpoint import write_json_atomic
 from talar_jax.language import build_cache
-from talar_jax.provenance import provenance
-from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves
-
-matplotlib.use("Agg")  # figures are only written to files
 
 STUDIES: tuple[str, ...] = ("ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert")
 ALIGNED_METHODS: tuple[str, ...] = (
@@ -73,17 +64,6 @@ METHOD_STUDIES: dict[str, tuple[str, ...]] = {
     "finetuned-bert": FINETUNED_METHODS,
 }
 """Studies that compare methods (one setting per method) rather than TALAR's settings."""
-
-PAPER = {
-    "ablation": "larger N_pn and N_a better on train and test; too large slows training; N_pn = 6, N_a = 4 sufficient "
-    "(Fig. 7, kitchen, 4M steps)",
-    "dataset-size": "10,000 tuples already give 76 %+ success, above every baseline (Fig. 13, kitchen)",
-    "end-to-end": "training the TL generator and the translator apart is better than jointly (Fig. 15, kitchen)",
-    "aligned": "the aligned baselines improve on the plain ones but stay below TALAR in learning speed and final "
-    "score (Fig. 12, kitchen)",
-    "finetuned-bert": "with BERT's parameters trained during policy learning, the baselines struggle to succeed at "
-    "all (Fig. 14, kitchen)",
-}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,113 +146,6 @@ def share_oracle(first: Path, target: Path) -> None:
     os.symlink(os.path.relpath(source.resolve(), target.resolve()), target / "oracle")
 
 
-HEADER = (
-    "| setting | train instructions (%) | test instructions (%) | IFP env steps per seed | IFP wall-clock (min) "
-    "| 80 % first reached (env steps) | mean success over the curve (%) |"
-)
-SPEED_THRESHOLD = 0.8
-"""Learning speed: the first evaluation at which the mean success over seeds (training instructions) reaches it."""
-
-
-def setting_curve(config: ExperimentConfig) -> LearningCurve | None:
-    """A setting's learning curve from its IFP's ``metrics.jsonl`` (also in a restored record); None without one."""
-    ifp = ifp_result(config)
-    if not (ifp.path / "ppo" / "metrics.jsonl").is_file():
-        return None
-    curve = learning_curve(ifp)
-    return curve if curve.env_steps.size else None
-
-
-def learning_speed(curve: LearningCurve) -> dict[str, float | int | None]:
-    """Training instructions: the env steps at which the mean over seeds first reaches ``SPEED_THRESHOLD`` (None:
-    never) and the mean success over the curve (mean over seeds, then over evaluations)."""
-    mean = np.asarray(curve.success["train"], float).mean(0)
-    reached = np.flatnonzero(mean >= SPEED_THRESHOLD)
-    return {
-        "env_steps_to_80_percent": int(curve.env_steps[reached[0]]) if reached.size else None,
-        "curve_mean_success": float(mean.mean()),
-    }
-
-
-def ifp_seconds(summary: dict[str, Any]) -> float | None:
-    """Wall-clock seconds of a setting's IFP stage (all its seeds, when it ran), from its run summary."""
-    seconds = [value for name, value in summary.get("stage_seconds", {}).items() if name.endswith("ifp")]
-    return float(seconds[0]) if seconds else None
-
-
-def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals: dict[str, dict[str, Any]]) -> str:
-    """``study.md``, ``study.png`` and ``summary.json`` in the study folder; returns the table."""
-    out = next(iter(configs.values())).out.parent
-    first = next(iter(configs.values()))
-    steps = {label: summary["ifp_env_steps_per_seed"] for label, summary in finals.items()}
-    title = f"{args.name}, {first.env}, {first.seeds} seeds, IFP {max(steps.values()):,} env steps per seed"
-    lines = [
-        f"### {title}",
-        "",
-        HEADER,
-    ]
-    lines.append("|---|---:|---:|---:|---:|---:|---:|")
-    curves = {label: curve for label in finals if (curve := setting_curve(configs[label])) is not None}
-    speeds = {label: learning_speed(curve) for label, curve in curves.items()}
-    for label, summary in finals.items():
-        success = summary["final_success"]
-        minutes = f"{ifp_seconds(summary) / 60:.1f}" if ifp_seconds(summary) is not None else "-"
-        train, test = percent_cell(success["train"]), percent_cell(success["test"])
-        speed = speeds.get(label, {})
-        reached = "never" if label in speeds else "-"
-        if speed.get("env_steps_to_80_percent") is not None:
-            reached = f"{speed['env_steps_to_80_percent']:,}"
-        area = f"{100 * speed['curve_mean_success']:.1f}" if speed else "-"
-        lines.append(f"| {label} | {train} | {test} | {steps[label]:,} | {minutes} | {reached} | {area} |")
-    missing = [label for label in configs if label not in finals]
-    if missing:
-        lines += ["", f"Not run yet (**partial study**): {', '.join(missing)}."]
-    lines += ["", f"Paper: {PAPER[args.name]}."]
-    table = "\n".join(lines) + "\n"
-    (out / "study.md").write_text(table)
-
-    figure, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    labels = list(finals)
-    for axis, split in zip(axes, ("train", "test"), strict=True):
-        rates = [100 * np.asarray(finals[label]["final_success"][split]) for label in labels]
-        axis.bar(range(len(labels)), [r.mean() for r in rates], yerr=[r.std() for r in rates], capsize=3)
-        axis.set_xticks(range(len(labels)), labels, rotation=45, ha="right")
-        axis.set_title(f"{split} instructions")
-        axis.set_ylim(0, 100)
-    axes[0].set_ylabel("final success (%)")
-    figure.suptitle(title)
-    figure.tight_layout()
-    figure.savefig(out / "study.png", dpi=120)
-    plt.close(figure)
-    if curves:
-        plot_learning_curves(curves, out / "study-curves.png", title=f"{args.name}, {first.env}")
-
-    write_json_atomic(
-        out / "summary.json",
-        {
-            "study": args.name,
-            "env": first.env,
-            "method": first.method,
-            "seeds": first.seeds,
-            "num_patterns": first.num_patterns,
-            "ifp_env_steps_per_seed": steps,
-            **provenance(),
-            "settings": {
-                label: {
-                    "folder": str(config.out),
-                    "method": config.method,
-                    "final_success": finals[label]["final_success"],
-                    "learning_speed": speeds.get(label),
-                }
-                for label, config in configs.items()
-                if label in finals
-            },
-            "not_run": missing,
-        },
-    )
-    return table
-
-
 def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -> dict[str, dict[str, Any]]:
     """Runs the settings of ``--only`` (default: all; reusing finished stages) and writes the study's figure, table
     and summary over every setting finished with the study's settings; ``configs``: ``settings(args)`` when already
@@ -304,7 +177,7 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
 
 def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
     runtime.start()
-    env = env_option(argv, default="kitchen")
+    env = env_argument(argv, default="kitchen")
     default = None
     if env in recipe_names():
         default = StudyArgs(tyro.MISSING, experiment=dataclasses.replace(default_config(env), out=None))
