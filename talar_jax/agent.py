@@ -3,17 +3,21 @@
 ``agent = talar_jax.agent.load("runs/kitchen", seed=0)`` reads a run folder of ``experiments.clevr`` /
 ``experiments.kitchen`` (the run root or its method folder, e.g. ``runs/kitchen/talar``):
 
-- ``config.json``: the resolved experiment config (env, env options, method, encoder, sentence readout, TL shape);
+- ``config.json``: the resolved experiment config (env, env options, seeds, encoder, policy sizes);
+- ``encoding.json``: the run's instruction encoding (``talar_jax.encodings.EncodingArtifact``): its kind, the
+  sentence readout it reads, its code size and network shapes, and where its seed-stacked parameters lie (a file
+  under the run root, e.g. a translator's ``params.msgpack``, or an entry of the policy checkpoint);
 - ``language.json``: the encoder's name and weights sha256 and the language cache key the run trained with;
-- ``<method>/translator/params.msgpack`` (TALAR, Handcrafted, GLA): the seed-stacked translators (end-to-end TALAR:
-  the ``translator`` entry of ``end-to-end/joint/params.msgpack``);
-- ``ifp/ppo/checkpoints``: the policy (and, for BERT-* and aligned BERT-*, the instruction encoding layer) after the
-  last chunk.
+- ``ifp/ppo/checkpoints``: the policy (and an encoding trained with it) after the last chunk.
 
-Then ``agent.encode(sentences)`` gives the features the translator reads, ``agent.translate(sentences)`` the
+The agent knows no methods: the encoding record says everything, and ``talar_jax.encodings.make_encoding`` builds
+the ``features -> codes`` function of its kind (kinds can be added with ``register_encoding_kind``).
+
+Then ``agent.encode(sentences)`` gives the features the encoding reads, ``agent.translate(sentences)`` the
 language codes the policy is conditioned on (the TL for TALAR), ``agent.nearest_goal(code)`` the goal whose
 training instructions share that code, ``agent.act(obs, code, rng)`` an action and ``agent.rollout(sentence, rng)``
-a whole episode. One-hot runs cannot read a sentence they were not trained with and raise ``AgentError``.
+a whole episode. Runs whose record says they cannot read a new sentence (kind ``"none"``, e.g. One-hot) raise
+``AgentError`` with the record's reason.
 """
 
 from __future__ import annotations
@@ -30,28 +34,16 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from talar_jax.baselines import AlignedEncodingLayer, NLEncodingLayer
-from talar_jax.checkpoint import load_tree
-from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features, sentence_features
+from talar_jax.encodings import (
+    ENCODING_FILE,
+    POLICY_SOURCE,
+    EncodingArtifact,
+    EncodingError,
+    make_encoding,
+)
+from talar_jax.language import build_cache, load_encoder, readout_features, sentence_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
 from talar_jax.report import LANGUAGE_RECORD
-from talar_jax.talar import TalarConfig, make_translate
-from talar_jax.task_language import TaskLanguageSpec
-
-TRANSLATOR_STAGES = {
-    "talar": "talar/translator",
-    "handcrafted": "handcrafted/translator",
-    "gla": "gla/translator",
-    "end-to-end": "end-to-end/joint",  # the joint fit's parameters: {"generator", "receiver", "translator"}
-}
-ENCODING_LAYER_METHODS = (
-    "bert-binary",
-    "bert-continuous",
-    "pretrained-bert-binary",
-    "pretrained-bert-continuous",
-    "aligned-bert-binary",  # the encoding layer has the TL generator's architecture (AlignedEncodingLayer)
-    "aligned-bert-continuous",
-)
 
 
 class AgentError(ValueError):
@@ -81,9 +73,10 @@ class Episode:
     goal: int
 
 
-def find_method_folder(run_dir: str | Path) -> Path:
+def find_method_folder(run_dir: str | Path, prefer: str | None = None) -> Path:
     """The method folder of a run: ``run_dir`` itself when it holds ``config.json``, else its only method subfolder
-    holding one (TALAR's when there are several)."""
+    holding one; with several (e.g. a comparison's output), the one named ``prefer`` (e.g. ``"talar"``), else an
+    ``AgentError`` listing them."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise AgentError(f"run folder {run_dir} does not exist")
@@ -93,12 +86,25 @@ def find_method_folder(run_dir: str | Path) -> Path:
     if not candidates:
         raise AgentError(f"{run_dir} holds no experiment run (no <method>/config.json with an ifp stage)")
     if len(candidates) > 1:
-        talar = [c for c in candidates if c.name == "talar"]
-        if not talar:
+        preferred = [c for c in candidates if prefer is not None and c.name == prefer]
+        if not preferred:
             names = ", ".join(str(c) for c in candidates)
             raise AgentError(f"{run_dir} holds several runs ({names}); pass one of them")
-        return talar[0]
+        return preferred[0]
     return candidates[0]
+
+
+def read_encoding(folder: Path) -> EncodingArtifact:
+    """The encoding record of a method folder; ``AgentError`` when it is missing or malformed."""
+    if not (folder / ENCODING_FILE).is_file():
+        raise AgentError(
+            f"the run in {folder} predates the encoding record (no {ENCODING_FILE}): rerun its command to write it "
+            "(every finished stage is reused)"
+        )
+    try:
+        return EncodingArtifact.read(folder)
+    except EncodingError as error:
+        raise AgentError(str(error)) from None
 
 
 def _latest_policy_params(ppo_dir: Path) -> dict[str, Any]:
@@ -114,7 +120,15 @@ def _latest_policy_params(ppo_dir: Path) -> dict[str, Any]:
 
 
 class Agent:
-    """One seed of a finished run: encoder, instruction encoding (translator or encoding layer), policy and env."""
+    """One seed of a finished run: encoder, instruction encoding (as its ``encoding.json`` records it), policy and
+    env.
+
+    Attributes:
+        folder: the run's method folder; config: its ``config.json``; method: the method it names (for display).
+        encoding: the run's ``EncodingArtifact``; readout: the sentence readout the encoding reads; code_size: the
+            size of its codes.
+        seed, env, env_name, encoder, cache: the seed, env, sentence encoder and language cache of the run.
+    """
 
     def __init__(self, run_dir: str | Path, seed: int = 0, physics: str | None = None, check_encoder: bool = True):
         folder = find_method_folder(run_dir)
@@ -124,24 +138,16 @@ class Agent:
             )
         self.folder = folder
         self.config = json.loads((folder / "config.json").read_text())
-        self.method = self.config["method"]
-        if self.method == "onehot":
-            raise AgentError(
-                "a One-hot run gives every training sentence its own code and has no way to read a new sentence; "
-                "load a TALAR, end-to-end TALAR, Handcrafted, GLA or BERT-* run"
-            )
-        if self.method not in TRANSLATOR_STAGES and self.method not in ENCODING_LAYER_METHODS:
-            raise AgentError(
-                f"method {self.method!r} has no sentence encoding an agent can use; load a TALAR, end-to-end TALAR, "
-                "Handcrafted, GLA or BERT-* run"
-            )
+        self.method = str(self.config.get("method", folder.name))
+        self.encoding = read_encoding(folder)
+        if not self.encoding.readable:
+            raise AgentError(self.encoding.unreadable_reason)
         seeds = int(self.config["seeds"])
         if not 0 <= seed < seeds:
             raise AgentError(f"--seed must lie in 0..{seeds - 1} (the run has {seeds} seeds), got {seed}")
         self.seed = seed
         self.env_name = self.config["env"]
-        reads_tokens = self.method in TRANSLATOR_STAGES and self.config["talar"].get("translator_tokens", False)
-        self.readout = TOKEN_READOUT if reads_tokens else self.config["sentence_readout"]
+        self.readout = self.encoding.readout
         self.env = envs.make(
             self.env_name, physics=physics or envs.default_backend(), **(self.config.get("env_options") or {})
         )
@@ -150,17 +156,29 @@ class Agent:
         self._cache_features: np.ndarray | None = None
         if check_encoder:
             self._check_encoder()
-        params = jax.tree.map(lambda x: np.asarray(x)[seed], _latest_policy_params(folder / "ifp" / "ppo"))
-        self._encoding = self._make_encoding(params)
+        stacked = _latest_policy_params(folder / "ifp" / "ppo")
+        try:
+            self._encoding = make_encoding(self.encoding, folder, seed, stacked)
+        except EncodingError as error:
+            raise AgentError(str(error)) from None
         train_rows = np.flatnonzero(self.cache.is_train)
         self._train_codes = np.asarray(self._encoding(self.cache_features()[train_rows]))
         self._train_goals = self.cache.goal_ids[train_rows]
-        ifp = self.config["ifp"]
         self.code_size = int(self._train_codes.shape[1])
+        if self.code_size != self.encoding.code_size:
+            raise AgentError(
+                f"the {self.encoding.kind} encoding of {folder} gives codes of size {self.code_size}, its record says "
+                f"{self.encoding.code_size}"
+            )
         networks = make_ppo_networks(
-            self.env.observation_size, self.code_size, self.env.action_spec, tuple(ifp["hidden_sizes"])
+            self.env.observation_size, self.code_size, self.env.action_spec, tuple(self.config["ifp"]["hidden_sizes"])
         )
-        self._policy_params = {k: v for k, v in params.items() if k != "conditioner"}
+        # the policy's own parameters: an encoding stored with them is applied by ``self._encoding``
+        source = self.encoding.params
+        own = source.entry if source.source == POLICY_SOURCE else None
+        self._policy_params = jax.tree.map(
+            lambda x: np.asarray(x)[seed], {k: v for k, v in stacked.items() if k != own}
+        )
         self._make_policy = make_inference_fn(networks)
         self._episode = jax.jit(self._episode_fn, static_argnames=("deterministic",))
 
@@ -176,43 +194,13 @@ class Agent:
                 f"the one the run trained with ({record.get('encoder_name')}, {str(record.get('weights_sha256'))[:12]})"
             )
 
-    def _make_encoding(self, params: dict[str, Any]):
-        if self.method in TRANSLATOR_STAGES:
-            talar = self.config["talar"]
-            if self.method in ("talar", "end-to-end"):
-                spec = TaskLanguageSpec(**talar["spec"])
-            elif self.method == "handcrafted":
-                spec = TaskLanguageSpec(num_predicates=0, num_arguments=1, arg_size=self.cache.num_goals)
-            else:
-                spec = TaskLanguageSpec(num_predicates=TaskLanguageSpec(**talar["spec"]).size, num_arguments=0)
-            translator_config = TalarConfig(
-                translator_hidden=tuple(talar["translator_hidden"]), translator_tokens=self.readout == TOKEN_READOUT
-            )
-            translate = make_translate(translator_config, spec)
-            stage = self.folder.parent / TRANSLATOR_STAGES[self.method] / "params.msgpack"
-            translator = load_tree(stage)
-            if self.method == "end-to-end":  # the joint fit stores generator, receiver and translator together
-                translator = translator["translator"]
-            translator = jax.tree.map(lambda x: np.asarray(x)[self.seed], translator)
-            return jax.jit(lambda features: translate(translator, features))
-        if self.method in ENCODING_LAYER_METHODS:
-            talar, binary = self.config["talar"], "binary" in self.method
-            spec = TaskLanguageSpec(**talar["spec"])
-            if self.method.startswith("aligned-"):
-                layer = AlignedEncodingLayer(spec, tuple(talar["generator_hidden"]), binary=binary)
-            else:
-                layer = NLEncodingLayer(spec.size, binary)
-            layer_params = params["conditioner"]
-            return jax.jit(lambda features: layer.apply(layer_params, features, None))
-        raise AgentError(f"method {self.method!r} has no sentence encoding an agent can use")
-
     @property
     def continuous_codes(self) -> bool:
-        """True for BERT-continuous encodings (codes compared by distance, not equality)."""
-        return self.method.endswith("bert-continuous")
+        """True for encodings whose codes are compared by distance, not equality (e.g. BERT-continuous)."""
+        return self.encoding.continuous
 
     def encode(self, sentences: str | Sequence[str]) -> np.ndarray:
-        """(S, F) the features the run's translator (or encoding layer) reads of each sentence."""
+        """(S, F) (or (S, T, D) token states) the features the run's encoding reads of each sentence."""
         sentences = [sentences] if isinstance(sentences, str) else list(sentences)
         for sentence in sentences:
             if not sentence.strip():
