@@ -90,7 +90,7 @@ def report(per_seed: list[dict[str, dict[str, float]]]) -> str:
 def generalize(args: GeneralizeArgs) -> dict:
     if args.episodes < 1:
         raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
-    folder = find_method_folder(args.run_dir)
+    folder = find_method_folder(args.run_dir, prefer="talar")
     seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
     per_seed, sizes = [], {}
     for seed in range(seeds):

@@ -15,21 +15,9 @@ from typing import Any
 from talar_jax.ppo import PPOConfig
 from talar_jax.talar import TalarConfig
 
-# Referential-game settings of the experiment commands. Table 2's LR 3e-4 at Gumbel temperature 1 left the generator
-# transmitting almost nothing in our runs (CLEVR, 6k steps: deterministic TL decoded the tuple's goal for 3 % of
-# tuples, RG loss 0.54 = the loss of a receiver that ignores L_T); LR 3e-3 and temperature 2, 20k steps: 47 %, loss
-# 0.36, against 0.18 for a receiver told the goal. The straight-through forward pass is the hard argmax whatever the
-# temperature, which only softens the backward pass: temperature 4 (20k steps, 5 seeds) lowered the RG loss to 0.35
-# and raised the translated table's distinct goal codes from 0.32 to 0.70 and its goal decodability from about 0.5
-# to 0.83 (training instructions) and 0.33 to 0.52 (test); temperature 1: 0.41, 0.13 and 0.34 (3 seeds).
-# Measured with scripts/probe_referential_game.py and runs/clevr-t4 (issue-6 notes).
-# Eq. 2's expectation over T_i taken over every token of the tuple's instruction (rg_all_tokens) instead of one
-# sampled token: CLEVR, 2 probe seeds, 20k steps, batch 64: the generator's TL decodes the tuple's goal for 63-71 %
-# of tuples (one token, batch 256: 37-52 %, 5 seeds), RG loss 0.30 (0.35), translated table: distinct goal codes
-# 0.95-1.0, goal decodability 0.98-1.0 train / 0.74-0.80 test. Batch 256 with all tokens did better still (0.79-0.84
-# of tuples, RG loss 0.25) but costs 3.7x the time on a 2-core CPU. With it, 2M IFP steps, 5 seeds: 96.8 / 84.0 %
-# success on train / test instructions (results/clevr-talar-alltokens-5seeds-2M); with ExperimentConfig's default
-# sentence readout as well: 97.8 / 92.2 % (results/clevr-talar-5seeds-2M-final).
+# The referential game of both envs: LR 3e-3 and Gumbel temperature 4 (at Table 2's 3e-4 and 1 the generator carried
+# almost no goal information) and Eq. 2's expectation over every token of the instruction, 64 tuples per step.
+# Measurements: results/recipe-measurements.md.
 EXPERIMENT_TALAR = TalarConfig(rg_learning_rate=3e-3, gumbel_temperature=4.0, rg_all_tokens=True, rg_batch_size=64)
 
 # The IFP's PPO in the experiment commands: Table 2 (PPOConfig's defaults) with the original's evaluation
@@ -130,30 +118,9 @@ def _clevr_showcase_goals() -> list[int]:
     return [int(list(GOAL_RELATION).index(relation)) for relation in range(NUM_RELATIONS)]
 
 
-# The receiver reads the prefix embeddings' first 32 principal components (TalarConfig.receiver_prefix_dims), which
-# makes a referential-game step 2.7x cheaper on CLEVR (54 against 148 ms for 5 seeds, one process, 2-core CPU) at no
-# loss of TL quality: 20k steps, 5 seeds, translator 3k steps, distinct goal codes 0.928, decodable 0.961 train /
-# 0.824 test (results/supervised-budget/README.md), against 0.857, 0.927 / 0.820 for the whole 384-entry embedding in
-# results/clevr-talar-5seeds-2M-session11. Not on the kitchen, where 32 components keep 86 % of the prefixes'
-# variance (CLEVR: 97 %) and cost one seed in five a merged sub-task code.
-# The pipeline on it (results/clevr-talar-5seeds-2M-d32, same task dataset and seeds as session 11's run): distinct
-# goal codes 0.948, decodable 0.972 / 0.881, against 0.857, 0.927 / 0.820. Each step also reads at most 8 of a tuple's
-# tokens (TalarConfig.rg_token_slots; CLEVR instructions have 12.6 on average, up to 17): 13.4 against 22.7 ms per
-# step for 5 seeds (one process), and at 20k steps, translator 3k, distinct goal codes 0.95, decodable 0.97 / 0.829
-# against 0.928, 0.961 / 0.824 with every slot (results/supervised-budget/README.md).
-# The translator: 2k Adam steps at LR 2e-3 instead of Table 2's 10k at 3e-4 (5x cheaper), learning also from 8
-# paraphrases per training instruction (TalarConfig.translator_paraphrases; issue 22). On one game (runs/clevr-2M-slots,
-# paired, 5 seeds; results/supervised-budget/README.md) the short, faster translator generalises better, not worse:
-# test-matches-train 0.757 (10k @ 3e-4) -> 0.859 (2k @ 2e-3) -> 0.945 (2k @ 2e-3 with paraphrases), decodable test
-# 0.753 -> 0.839 -> 0.905, agreement on our development phrasings 46.2 -> 51.6 -> 64.5 %; on a second game (other
-# seeds, no paraphrases) 0.928 test-matches-train against 0.875 for 10k @ 3e-4, decodable test 0.905 against 0.870.
-# Behaviour cloning of the pre-trained BERT-* baselines keeps its former budget (10k steps at 3e-4).
-# The translator reads every word piece's state through attention pooling (translator_tokens) and learns from
-# paraphrases that may also front the closing phrase ("Behind the blue ball, push the red ball."): measured on the
-# paper's budget (2M x 5, results/unseen-phrasings.md), against the same recipe with the one-vector readout and no
-# fronting: TL agreement on our development phrasings 64.5 -> 87.8 %, success 77.6 -> 90.9 %; test set agreement
-# 94.5 -> 97.3 %, success 96.0 -> 97.3 %. Fronting without the token readout lifted development agreement to 73.6 %
-# but cost the test set 1.4 points. The translator stage costs about 4x more (272 s vs 70 s on 2 cores).
+# CLEVR: a cheaper referential game (32 principal components of the prefix embeddings, 8 token slots per step) at
+# no loss of TL quality, and a shorter translator that reads token states and learns from paraphrases, which
+# generalises better to unseen phrasings (results/recipe-measurements.md).
 CLEVR_TALAR = dataclasses.replace(
     EXPERIMENT_TALAR,
     receiver_prefix_dims=32,
@@ -208,22 +175,9 @@ def _kitchen_collector():
 
 
 KITCHEN_IFP = dataclasses.replace(EXPERIMENT_IFP, total_env_steps=4_000_000)
-# The kitchen's six sub-tasks need a quarter of the referential game and a fifth of the translator steps, measured
-# with `python scripts/supervised_budget.py runs/kitchen-4M/oracle/dataset --env kitchen --seeds 5 --rg-milestones
-# 2000 5000 --translator-steps 500 2000 10000` (results/supervised-budget/): at 5k RG steps every seed's translated TL
-# gives the six sub-tasks six distinct codes (distinct_goal_codes 1.0, decodable 1.0 train / 0.997 test; translator
-# 2k steps = 10k steps); at 2k RG steps 0.867; the 20k-step run of results/kitchen-talar-5seeds-4M (other seeds): 0.933.
-# Each step reads at most 16 of a tuple's tokens (TalarConfig.rg_token_slots; kitchen instructions have 13.7 tokens on
-# average and up to 25, so about 45 % of the all-token layout's receiver rows were padding): 1.1-1.6x cheaper steps
-# for 5 seeds (four timings on this noisy 2-core CPU, each in one process), and at 5k steps the same TL (distinct goal
-# codes 1.0, decodable 1.0 / 1.0; results/supervised-budget/README.md).
-# The translator reads token states and learns from 8 paraphrases per training instruction that may put an unknown
-# word in place of a function word (as CLEVR's; issue 22). Measured at 4M x 5 on one game and one policy (the policy is
-# bit-identical: every goal keeps its training code), episodes paired as `experiments.generalize` pairs them
-# (results/unseen-phrasings.md, results/kitchen-talar-5seeds-4M-tokens): success on our development phrasings 85.5 ->
-# 89.1 %, TL agreement 91.3 -> 94.0 %; the test set unchanged (agreement 100 %, success 96.3 %). Fronted phrases stay
-# off (not measured on the kitchen). The translator stage costs 165 s for 5 seeds instead of
-# about 60 s on 2 cores.
+# The kitchen's six sub-tasks need a quarter of the referential game and a fifth of the translator steps for the
+# same TL (six distinct codes on every seed); the translator reads token states and learns from paraphrases with
+# unknown words, as CLEVR's (results/recipe-measurements.md).
 KITCHEN_TALAR = dataclasses.replace(
     EXPERIMENT_TALAR,
     rg_steps=5_000,

@@ -144,7 +144,7 @@ def load_agent(run_dir: str | Path, seed: int = 0, physics: str | None = None, c
     from talar_jax.agent import Agent, find_method_folder
     from talar_jax.encodings import ENCODING_FILE
 
-    folder = find_method_folder(run_dir)
+    folder = find_method_folder(run_dir, prefer="talar")  # a comparison's folder: its TALAR run
     if not (folder / ENCODING_FILE).is_file() and (folder / "config.json").is_file():
         write_encoding_record(folder)
     return Agent(folder, seed=seed, physics=physics, check_encoder=check_encoder)

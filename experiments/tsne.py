@@ -127,7 +127,7 @@ def write_tsne_grid(folders: Sequence[Path], path: Path, seed: int = 0) -> tuple
 def tsne(args: TsneArgs) -> Path:
     if not args.run_dirs:
         raise AgentError("give at least one run folder")
-    folders = [find_method_folder(run_dir) for run_dir in args.run_dirs]
+    folders = [find_method_folder(run_dir, prefer="talar") for run_dir in args.run_dirs]
     for folder in folders:
         if not (folder / "ifp" / "stage.json").is_file():
             raise AgentError(f"the run in {folder} is not finished (its ifp stage has no stage.json)")

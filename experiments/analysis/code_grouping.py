@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("run_dir")
     args = parser.parse_args(argv)
     try:
-        folder = find_method_folder(args.run_dir)
+        folder = find_method_folder(args.run_dir, prefer="talar")
         agent = load_agent(args.run_dir, seed=0)
     except AgentError as error:
         sys.exit(f"error: {error}")

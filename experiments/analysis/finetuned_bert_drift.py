@@ -44,7 +44,7 @@ def goal_grouping(vectors: np.ndarray, goals: np.ndarray, is_train: np.ndarray) 
 
 
 def drift(run_dir: str | Path, seed: int = 0) -> dict:
-    folder = find_method_folder(run_dir)
+    folder = find_method_folder(run_dir, prefer="talar")
     config = json.loads((folder / "config.json").read_text())
     if not str(config.get("method", "")).startswith("finetuned-"):
         raise AgentError(f"{folder} is a {config.get('method')} run, not a finetuned-bert-* one")

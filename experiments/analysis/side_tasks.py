@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
     try:
-        config = json.loads((find_method_folder(args.run_dir) / "config.json").read_text())
+        config = json.loads((find_method_folder(args.run_dir, prefer="talar") / "config.json").read_text())
         seeds = args.seeds if args.seeds is not None else range(int(config["seeds"]))
         reports = [seed_report(args.run_dir, seed, args.episodes) for seed in seeds]
     except (AgentError, ValueError) as error:
