@@ -6,6 +6,7 @@ tests/test_language.py) so that building the language caches takes seconds.
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,11 @@ def test_clevr_quick_end_to_end(clevr_run, capsys):
     assert again["final_success"] == summary["final_success"]
 
 
+def _copy_of(run_folder, tmp_path):
+    """A copy of a finished run folder: a test that adds methods to it leaves the shared fixture as it was."""
+    return Path(shutil.copytree(run_folder, tmp_path / "run", symlinks=True))
+
+
 @pytest.mark.parametrize(
     ("methods", "names"),
     [
@@ -70,8 +76,8 @@ def test_clevr_quick_end_to_end(clevr_run, capsys):
         pytest.param(("talar", "onehot", "gla"), {"TALAR", "One-hot", "GLA"}, marks=pytest.mark.slow),
     ],
 )
-def test_compare_quick_runs_baselines_on_shared_stages(clevr_run, methods, names):
-    out, _ = clevr_run
+def test_compare_quick_runs_baselines_on_shared_stages(clevr_run, methods, names, tmp_path):
+    out = _copy_of(clevr_run[0], tmp_path)
     experiment = default_config("clevr", seeds=2, out=out, quick=True, encoder=TINY_BERT, progress=False)
     final = compare(CompareArgs(experiment=experiment, methods=methods))
     assert set(final) == names
@@ -81,11 +87,11 @@ def test_compare_quick_runs_baselines_on_shared_stages(clevr_run, methods, names
     assert "TALAR over the best baseline (paper: +13.4 points" in table
 
 
-def test_compare_shows_every_method_finished_with_its_settings(clevr_run, monkeypatch):
+def test_compare_shows_every_method_finished_with_its_settings(clevr_run, monkeypatch, tmp_path):
     """Methods run one call at a time still make one table; a policy trained with other settings is left out."""
     from experiments.compare import finished_methods
 
-    out, _ = clevr_run
+    out = _copy_of(clevr_run[0], tmp_path)
     experiment = default_config("clevr", seeds=2, out=out, quick=True, encoder=TINY_BERT, progress=False)
     final = compare(CompareArgs(experiment=experiment, methods=("bert-binary",)))  # TALAR: the fixture's run
     assert {"TALAR", "BERT-binary"} <= set(final)
