@@ -27,8 +27,8 @@ from envs.wrappers import (
 )
 
 # Env packages register themselves (and their instruction formats) on import.
-from envs import clevr as _clevr  # noqa: E402,F401  isort: skip
-from envs import kitchen as _kitchen  # noqa: E402,F401  isort: skip
+from envs import clevr as _clevr  # noqa: F401  isort: skip
+from envs import kitchen as _kitchen  # noqa: F401  isort: skip
 
 ALL_ENVS: tuple[str, ...] = registered_names()
 

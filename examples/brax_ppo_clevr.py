@@ -18,15 +18,16 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+import jax
+import jax.numpy as jnp
+from brax.training.agents.ppo import networks as ppo_networks
+from brax.training.agents.ppo import train as ppo
+from provenance import provenance  # examples/provenance.py: examples/ is on sys.path when run as a script
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-from brax.training.agents.ppo import networks as ppo_networks  # noqa: E402
-from brax.training.agents.ppo import train as ppo  # noqa: E402
-from provenance import provenance  # noqa: E402  (examples/, on sys.path when run as a script)
+import envs
 
-import envs  # noqa: E402
+CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
+"""MJX's CPU flag; XLA reads XLA_FLAGS when JAX's backend starts (its first computation), so ``main`` sets it first."""
 
 
 def evaluate(env, policy, episodes: int, seed: int) -> float:
@@ -50,6 +51,7 @@ def evaluate(env, policy, episodes: int, seed: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("XLA_FLAGS", CPU_XLA_FLAG)
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--timesteps", type=int, default=5_000_000, help="env steps of training")
     parser.add_argument("--seed", type=int, default=0)

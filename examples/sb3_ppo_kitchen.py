@@ -19,16 +19,17 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
+import numpy as np
+from provenance import provenance  # examples/provenance.py: examples/ is on sys.path when run as a script
+from stable_baselines3 import PPO
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
 
-import numpy as np  # noqa: E402
-from provenance import provenance  # noqa: E402  (examples/, on sys.path when run as a script)
-from stable_baselines3 import PPO  # noqa: E402
-from stable_baselines3.common.callbacks import BaseCallback  # noqa: E402
-from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
+import envs
+from envs.kitchen import tasks
 
-import envs  # noqa: E402
-from envs.kitchen import tasks  # noqa: E402
+CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
+"""MJX's CPU flag; XLA reads XLA_FLAGS when JAX's backend starts (its first computation), so ``main`` sets it first."""
 
 
 class BatchedVecEnv(VecEnv):
@@ -106,6 +107,7 @@ class EpisodeLog(BaseCallback):
 
 
 def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("XLA_FLAGS", CPU_XLA_FLAG)
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--task", default="slide cabinet", choices=tasks.ALL_TASK_NAMES)
     parser.add_argument("--timesteps", type=int, default=300_000)

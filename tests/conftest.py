@@ -1,12 +1,13 @@
-"""Test configuration: CPU XLA flags and a persistent compile cache, set before JAX starts."""
+"""Test configuration: CPU XLA flags and a persistent compile cache, set when pytest loads this file (before it
+imports any test module, and so before JAX starts)."""
+
+from pathlib import Path
+
+import pytest
 
 from talar_jax.runtime import configure
 
 configure()
-
-from pathlib import Path  # noqa: E402
-
-import pytest  # noqa: E402
 
 TINY_BERT = str(Path(__file__).parent / "data" / "tiny_bert_mlm")
 QUICK = ["--quick", "--seeds", "2", "--no-progress", "--no-deployment-strip", "--encoder", TINY_BERT]

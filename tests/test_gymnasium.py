@@ -10,12 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import envs
+from envs.render import RenderError
+
 gym = pytest.importorskip("gymnasium")
-
-from gymnasium.utils.env_checker import check_env  # noqa: E402
-
-import envs  # noqa: E402
-from envs.render import RenderError  # noqa: E402
+check_env = pytest.importorskip("gymnasium.utils.env_checker").check_env
 
 NUM_ENVS = 8
 EPISODE_LENGTH = 4

@@ -6,12 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("tensorboardX")
+from experiments.config import ExperimentConfig, resolve
+from talar_jax.logging import TensorBoardLogger
 
-from tensorboardX.proto import event_pb2  # noqa: E402
-
-from experiments.config import ExperimentConfig, resolve  # noqa: E402
-from talar_jax.logging import TensorBoardLogger  # noqa: E402
+event_pb2 = pytest.importorskip("tensorboardX.proto.event_pb2")
 
 
 def read_scalars(log_dir: Path) -> dict[str, list[tuple[int, float]]]:
