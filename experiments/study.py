@@ -90,7 +90,7 @@ class StudyArgs:
     a few settings at a time."""
     report_only: bool = False
     """Run nothing: rewrite the study's figures, table and summary over the settings already finished (after
-    restoring recorded runs with ``scripts/restore_record.py``, or after a change to the report)."""
+    restoring recorded runs with ``python -m experiments.records restore``, or after a change to the report)."""
 
 
 def settings(args: StudyArgs) -> dict[str, ExperimentConfig]:
