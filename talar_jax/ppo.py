@@ -445,6 +445,125 @@ def make_evaluator(
     return evaluate
 
 
+class _Compiled(NamedTuple):
+    """A run's compiled programs: one chunk of training of every seed, the evaluator, and the seconds both took."""
+
+    chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, Any]]]
+    evaluate: Callable[[dict[str, Any], int], dict[str, dict[str, Any]]]
+    seconds: float
+
+
+def _compile_run(
+    trainer: Trainer, config: PPOConfig, eval_splits: Sequence[str], num_goals: int, state: TrainingState
+) -> _Compiled:
+    compile_start = time.perf_counter()
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    evaluate = make_evaluator(trainer, config, eval_splits, num_goals, state.params)
+    return _Compiled(chunk_fn, evaluate, time.perf_counter() - compile_start)
+
+
+def _start_state(
+    trainer: Trainer, config: PPOConfig, initial_params: dict[str, Any] | None, run_files: RunFiles | None
+) -> tuple[TrainingState, dict[str, Any]]:
+    """The state and progress record (chunks done, wall-clock, target reached) a run starts from: fresh, or the
+    latest checkpoint's when the run folder holds one."""
+    state = initial_state(trainer, config, initial_params)
+    done = {"chunks": 0, "wall_s": 0.0, "target_reached": None}
+    if run_files is None:
+        return state, done
+    return run_files.restore(state, done)
+
+
+def _train_chunk(
+    chunk_fn: Callable, state: TrainingState, config: PPOConfig, sizes: PPODerived, chunk_index: int, wall_s: float
+) -> tuple[TrainingState, dict[str, Any]]:
+    """Runs chunk ``chunk_index``; returns the new state and the chunk's row of training metrics (``wall_s``: the
+    run's wall-clock before the chunk; the row's ``train/wall_s`` the one after it)."""
+    start = time.perf_counter()
+    state, metrics = chunk_fn(state)
+    metrics = jax.device_get(metrics)
+    chunk_s = time.perf_counter() - start
+    return state, {
+        "train/env_steps": (chunk_index + 1) * sizes.env_steps_per_chunk,
+        "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
+        "train/chunk_s": chunk_s,
+        "train/wall_s": wall_s + chunk_s,
+        **_chunk_metrics(metrics),
+    }
+
+
+def _evaluate_chunk(
+    evaluate: Callable, params: dict[str, Any], chunk_index: int, row: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """Evaluates the seeds' ``params`` after chunk ``chunk_index``; adds the seconds it took and every split's
+    summary to the chunk's ``row``."""
+    eval_start = time.perf_counter()
+    final_eval = evaluate(params, chunk_index)
+    row["eval/seconds"] = time.perf_counter() - eval_start
+    for split, summary in final_eval.items():
+        row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
+    return final_eval
+
+
+def _reaches_target(
+    done: dict[str, Any], target_success: float | None, final_eval: dict[str, dict[str, Any]], row: dict[str, Any]
+) -> bool:
+    """Whether this evaluation is the first whose success (training instructions, else the first split) reaches
+    ``target_success``; if so, records its env steps, wall-clock and success in ``done["target_reached"]``."""
+    success = final_eval.get("train", next(iter(final_eval.values())))["success"]
+    reached = target_success is not None and done["target_reached"] is None and success >= target_success
+    if reached:
+        done["target_reached"] = {
+            "env_steps": row["train/env_steps"],
+            "wall_s": row["train/wall_s"],
+            "success": success,
+        }
+    return reached
+
+
+def _train_chunks(
+    state: TrainingState,
+    done: dict[str, Any],
+    compiled: _Compiled,
+    config: PPOConfig,
+    eval_splits: Sequence[str],
+    run_files: RunFiles | None,
+    log: Logger,
+    target_success: float | None,
+    stop_at_target: bool,
+    progress: bool,
+) -> tuple[TrainingState, list[dict[str, Any]], dict[str, dict[str, Any]], float]:
+    """Runs the chunks after ``done["chunks"]`` (until the target when ``stop_at_target``): each one trained,
+    evaluated every ``eval_every_chunks`` chunks and after the last, checkpointed and logged. Returns the state, the
+    rows of the chunks run, the last evaluation ({} when none ran) and the run's wall-clock."""
+    sizes = derive(config)
+    history: list[dict[str, Any]] = []
+    final_eval: dict[str, dict[str, Any]] = {}
+    wall_s = float(done["wall_s"])
+    stop = stop_at_target and done["target_reached"] is not None
+    bar = tqdm(total=sizes.num_chunks, initial=done["chunks"], disable=not progress, unit="chunk", desc="ppo")
+    for chunk_index in range(done["chunks"], sizes.num_chunks):
+        if stop:
+            break
+        state, row = _train_chunk(compiled.chunk, state, config, sizes, chunk_index, wall_s)
+        wall_s = row["train/wall_s"]
+        if chunk_index == done["chunks"]:
+            row["train/compile_s"] = compiled.seconds
+        last = chunk_index == sizes.num_chunks - 1
+        if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
+            final_eval = _evaluate_chunk(compiled.evaluate, state.params, chunk_index, row)
+            stop = _reaches_target(done, target_success, final_eval, row) and stop_at_target
+        if run_files is not None:
+            run_files.save(chunk_index + 1, state, wall_s, done["target_reached"])
+        history.append(row)
+        log.write(chunk_index + 1, row)
+        bar.update(1)
+        shown = ("eval/train/success", "train/success")
+        bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
+    bar.close()
+    return state, history, final_eval, wall_s
+
+
 def run_ppo(
     config: PPOConfig,
     env: Any,
@@ -480,64 +599,16 @@ def run_ppo(
     """
     for split in eval_splits:
         check_split(split)
-    sizes = derive(config)
     trainer = make_train(config, env, conditioner)
-    state = initial_state(trainer, config, initial_params)
     run_files = RunFiles(out_dir, config) if out_dir is not None else None
-    done = {"chunks": 0, "wall_s": 0.0, "target_reached": None}
-    if run_files is not None:
-        state, done = run_files.restore(state, done)
+    state, done = _start_state(trainer, config, initial_params, run_files)
     log = MultiLogger(logger or NoOpLogger(), *([run_files.logger] if run_files is not None else []))
-
-    compile_start = time.perf_counter()
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
-    evaluate = make_evaluator(trainer, config, eval_splits, env.num_goals, state.params)
-    compile_s = time.perf_counter() - compile_start
-
-    history: list[dict[str, Any]] = []
-    final_eval: dict[str, dict[str, Any]] = {}
-    wall_s = float(done["wall_s"])
-    stop = stop_at_target and done["target_reached"] is not None
-    bar = tqdm(total=sizes.num_chunks, initial=done["chunks"], disable=not progress, unit="chunk", desc="ppo")
-    for chunk_index in range(done["chunks"], sizes.num_chunks):
-        if stop:
-            break
-        start = time.perf_counter()
-        state, metrics = chunk_fn(state)
-        metrics = jax.device_get(metrics)
-        chunk_s = time.perf_counter() - start
-        wall_s += chunk_s
-        env_steps = (chunk_index + 1) * sizes.env_steps_per_chunk
-        row = {
-            "train/env_steps": env_steps,
-            "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
-            "train/chunk_s": chunk_s,
-            "train/wall_s": wall_s,
-            **_chunk_metrics(metrics),
-        }
-        if chunk_index == done["chunks"]:
-            row["train/compile_s"] = compile_s
-        last = chunk_index == sizes.num_chunks - 1
-        if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
-            eval_start = time.perf_counter()
-            final_eval = evaluate(state.params, chunk_index)
-            row["eval/seconds"] = time.perf_counter() - eval_start
-            for split, summary in final_eval.items():
-                row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
-            success = final_eval.get("train", next(iter(final_eval.values())))["success"]
-            if target_success is not None and done["target_reached"] is None and success >= target_success:
-                done["target_reached"] = {"env_steps": env_steps, "wall_s": wall_s, "success": success}
-                stop = stop_at_target
-        if run_files is not None:
-            run_files.save(chunk_index + 1, state, wall_s, done["target_reached"])
-        history.append(row)
-        log.write(chunk_index + 1, row)
-        bar.update(1)
-        shown = ("eval/train/success", "train/success")
-        bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
-    bar.close()
+    compiled = _compile_run(trainer, config, eval_splits, env.num_goals, state)
+    state, history, final_eval, wall_s = _train_chunks(
+        state, done, compiled, config, eval_splits, run_files, log, target_success, stop_at_target, progress
+    )
     if not final_eval and eval_splits:
-        final_eval = evaluate(state.params, sizes.num_chunks)
+        final_eval = compiled.evaluate(state.params, derive(config).num_chunks)
     if run_files is not None:
         run_files.close()
     log.close()
