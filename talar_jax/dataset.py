@@ -138,6 +138,81 @@ def _goals_with_instructions(sampler: Any, num_goals: int) -> np.ndarray:
     return np.asarray(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train"))(keys, goals)) >= 0
 
 
+class _KeptEpisodes:
+    """The tuples kept from the rounds so far, episode by episode (the last one cut to reach ``num_tuples``), and
+    the collection's counts."""
+
+    def __init__(self, num_tuples: int, has_language: np.ndarray, successful_only: bool):
+        self.num_tuples = num_tuples
+        self.has_language = has_language
+        self.successful_only = successful_only
+        self.parts: dict[str, list[np.ndarray]] = {
+            name: [] for name in ("states", "final_states", "actions", "goal_ids", "episode_ids")
+        }
+        self.kept, self.episodes, self.successes, self.rounds, self.kept_episodes = 0, 0, 0, 0, 0
+
+    def check_rounds(self, max_rounds: int) -> None:
+        """Gives up (raises) once ``max_rounds`` rounds have not given ``num_tuples`` tuples."""
+        if self.rounds >= max_rounds:
+            raise RuntimeError(
+                f"only {self.kept} of {self.num_tuples} tuples after {self.rounds} rounds ({self.successes} successes)"
+            )
+
+    def add_round(self, record: dict[str, np.ndarray], num_envs: int) -> int:
+        """Keeps the chosen episodes of one round's (T, E) ``record`` until ``num_tuples``; returns the tuples added."""
+        self.rounds += 1
+        done = np.asarray(record["done"]) > 0.5  # (T, E)
+        ended = done.any(axis=0)
+        end = np.argmax(done, axis=0)
+        succeeded = ended & (np.asarray(record["success"])[end, np.arange(num_envs)] > 0.5)
+        self.successes += int(succeeded.sum())
+        keep = succeeded if self.successful_only else ended
+        added = 0
+        for env_index in np.flatnonzero(keep & self.has_language[np.asarray(record["goal"])]):
+            if self.kept >= self.num_tuples:
+                break
+            added += self._add_episode(record, env_index, end[env_index])
+        self.episodes += num_envs
+        return added
+
+    def _add_episode(self, record: dict[str, np.ndarray], env_index: int, end: int) -> int:
+        """Keeps env ``env_index``'s episode, which ended at step ``end``: each step's (s_i, a_i) with its s_T."""
+        length = min(int(end) + 1, self.num_tuples - self.kept)
+        final = record["next_obs"][end, env_index]
+        self.parts["states"].append(record["obs"][:length, env_index])
+        self.parts["actions"].append(record["action"][:length, env_index])
+        self.parts["final_states"].append(np.broadcast_to(final, (length, final.shape[-1])))
+        self.parts["goal_ids"].append(np.full(length, record["goal"][env_index], np.int32))
+        self.parts["episode_ids"].append(np.full(length, self.kept_episodes, np.int32))
+        self.kept_episodes += 1
+        self.kept += length
+        return length
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {name: np.concatenate(chunks) for name, chunks in self.parts.items()}
+
+    def statistics(self, num_envs: int, seconds: float) -> dict[str, Any]:
+        """The dataset's ``config["collection"]``."""
+        return {
+            "episodes": self.episodes,
+            "successful_episodes": self.successes,
+            "kept_episodes": self.kept_episodes,
+            "goals_without_train_instructions": np.flatnonzero(~self.has_language).tolist(),
+            "rounds": self.rounds,
+            "success_rate": self.successes / max(self.episodes, 1),
+            "seconds": seconds,
+            "num_envs": num_envs,
+            "kept": "successful episodes" if self.successful_only else "all episodes (hindsight s_T)",
+        }
+
+
+def _draw_train_instructions(sampler: Any, rng: jax.Array, goal_ids: np.ndarray) -> np.ndarray:
+    """(N,) int32: a training instruction of each tuple's goal, one key per tuple split from ``rng``."""
+    draw = jax.jit(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train")))
+    keys = jax.random.split(rng, len(goal_ids))
+    return np.asarray(draw(keys, jnp.asarray(goal_ids)), np.int32)
+
+
 def collect_task_dataset(
     env: Any,
     behaviour: Callable[[Any, jax.Array], jax.Array],
@@ -174,57 +249,18 @@ def collect_task_dataset(
     if num_tuples < 1:
         raise ValueError(f"num_tuples must be >= 1, got {num_tuples}")
     round_fn = jax.jit(_Roller(env, behaviour).round, static_argnums=1)
-    sampler = instruction_sampler
-    draw = jax.jit(jax.vmap(lambda key, goal: sampler.sample(key, goal, "train")))
     start = time.perf_counter()
-    parts: dict[str, list[np.ndarray]] = {
-        name: [] for name in ("states", "final_states", "actions", "goal_ids", "episode_ids")
-    }  # noqa: E501
-    kept, episodes, successes, rounds, kept_episodes = 0, 0, 0, 0, 0
-    has_language = _goals_with_instructions(sampler, env.num_goals)
+    collected = _KeptEpisodes(num_tuples, _goals_with_instructions(instruction_sampler, env.num_goals), successful_only)
     bar = tqdm(total=num_tuples, disable=not progress, unit="tuple", desc="collect")
-    while kept < num_tuples:
-        if rounds >= max_rounds:
-            raise RuntimeError(f"only {kept} of {num_tuples} tuples after {rounds} rounds ({successes} successes)")
+    while collected.kept < num_tuples:
+        collected.check_rounds(max_rounds)
         rng, rng_round = jax.random.split(rng)
-        record = jax.device_get(round_fn(rng_round, num_envs))
-        rounds += 1
-        done = np.asarray(record["done"]) > 0.5  # (T, E)
-        ended = done.any(axis=0)
-        end = np.argmax(done, axis=0)
-        succeeded = ended & (np.asarray(record["success"])[end, np.arange(num_envs)] > 0.5)
-        successes += int(succeeded.sum())
-        keep = succeeded if successful_only else ended
-        for env_index in np.flatnonzero(keep & has_language[np.asarray(record["goal"])]):
-            if kept >= num_tuples:
-                break
-            length = min(int(end[env_index]) + 1, num_tuples - kept)
-            final = record["next_obs"][end[env_index], env_index]
-            parts["states"].append(record["obs"][:length, env_index])
-            parts["actions"].append(record["action"][:length, env_index])
-            parts["final_states"].append(np.broadcast_to(final, (length, final.shape[-1])))
-            parts["goal_ids"].append(np.full(length, record["goal"][env_index], np.int32))
-            parts["episode_ids"].append(np.full(length, kept_episodes, np.int32))
-            kept_episodes += 1
-            kept += length
-            bar.update(length)
-        episodes += num_envs
+        bar.update(collected.add_round(jax.device_get(round_fn(rng_round, num_envs)), num_envs))
     bar.close()
-    arrays = {name: np.concatenate(chunks) for name, chunks in parts.items()}
+    arrays = collected.arrays()
     rng, rng_language = jax.random.split(rng)
-    keys = jax.random.split(rng_language, len(arrays["goal_ids"]))
-    instruction_ids = np.asarray(draw(keys, jnp.asarray(arrays["goal_ids"])), np.int32)
-    collection = {
-        "episodes": episodes,
-        "successful_episodes": successes,
-        "kept_episodes": kept_episodes,
-        "goals_without_train_instructions": np.flatnonzero(~has_language).tolist(),
-        "rounds": rounds,
-        "success_rate": successes / max(episodes, 1),
-        "seconds": time.perf_counter() - start,
-        "num_envs": num_envs,
-        "kept": "successful episodes" if successful_only else "all episodes (hindsight s_T)",
-    }
+    instruction_ids = _draw_train_instructions(instruction_sampler, rng_language, arrays["goal_ids"])
+    collection = collected.statistics(num_envs, time.perf_counter() - start)
     return TaskDataset(
         states=arrays["states"].astype(np.float32),
         final_states=arrays["final_states"].astype(np.float32),
