@@ -77,6 +77,47 @@ class AdamFit:
         return state.params, losses
 
 
+class _PieceRunners:
+    """``fit``'s pieces vmapped over seeds: one compiled program per piece length, and the seconds compiling took."""
+
+    def __init__(self, fit: AdamFit, in_axes: tuple[int | None, ...]):
+        self.fit = fit
+        self.in_axes = in_axes
+        self.compiled: dict[int, Callable] = {}
+        self.compile_s = 0.0
+
+    def __call__(self, steps: int, state: FitState, inputs: tuple[Any, ...]) -> tuple[FitState, jax.Array]:
+        """``steps`` more steps of every seed (compiled on first use of that length): new state, (seeds, steps)
+        losses."""
+        if steps not in self.compiled:
+            compile_start = time.perf_counter()
+            fit = self.fit
+            runner = jax.jit(jax.vmap(lambda s, *x, n=steps: fit.run(s, *x, steps=n), in_axes=(0, *self.in_axes)))
+            self.compiled[steps] = runner.lower(state, *inputs).compile()
+            self.compile_s += time.perf_counter() - compile_start
+        return self.compiled[steps](state, *inputs)
+
+
+def _resume_fit(
+    checkpoint: str | Path | None,
+    state: FitState,
+    restart: Callable[[], FitState],
+    steps: int,
+    label: str,
+    progress: bool,
+) -> tuple[FitState, list[np.ndarray], int]:
+    """(state, losses so far, steps done) of a fit of ``steps`` steps: ``checkpoint``'s when it holds one of at most
+    that many steps; a fresh start (``state``, or ``restart()`` after reading a longer fit's) otherwise."""
+    if checkpoint is None or not Path(checkpoint).is_file():
+        return state, [], 0
+    state, restored = _restore_fit(Path(checkpoint), state)
+    if restored.shape[1] > steps:  # a longer fit's state: start again
+        return restart(), [], 0
+    if progress:
+        print(f"{label}: resumed at step {restored.shape[1]}/{steps} from {checkpoint}", flush=True)
+    return state, [restored], restored.shape[1]
+
+
 def fit_seeds(
     fit: AdamFit,
     seed_keys: jax.Array,
@@ -110,26 +151,14 @@ def fit_seeds(
     if len(in_axes) != len(inputs):
         raise ValueError(f"fit_seeds: {len(inputs)} inputs but {len(in_axes)} in_axes")
     init = jax.jit(jax.vmap(fit.init, in_axes=(0, *in_axes)))
-    runners: dict[int, Callable] = {}
+    runners = _PieceRunners(fit, in_axes)
     state = init(seed_keys, *inputs)
     chunk = -(-fit.steps // max(1, min(chunks, fit.steps)))
-    losses, done, start, compile_s = [], 0, time.perf_counter(), 0.0
-    if checkpoint is not None and Path(checkpoint).is_file():
-        state, restored = _restore_fit(Path(checkpoint), state)
-        if restored.shape[1] <= fit.steps:
-            losses, done = [restored], restored.shape[1]
-            if progress:
-                print(f"{label}: resumed at step {done}/{fit.steps} from {checkpoint}", flush=True)
-        else:  # a longer fit's state: start again
-            state = init(seed_keys, *inputs)
+    start = time.perf_counter()
+    state, losses, done = _resume_fit(checkpoint, state, lambda: init(seed_keys, *inputs), fit.steps, label, progress)
     while done < fit.steps:
         steps = min(chunk, fit.steps - done)
-        if steps not in runners:
-            compile_start = time.perf_counter()
-            runner = jax.jit(jax.vmap(lambda s, *x, n=steps: fit.run(s, *x, steps=n), in_axes=(0, *in_axes)))
-            runners[steps] = runner.lower(state, *inputs).compile()
-            compile_s += time.perf_counter() - compile_start
-        state, chunk_losses = runners[steps](state, *inputs)
+        state, chunk_losses = runners(steps, state, inputs)
         losses.append(np.asarray(chunk_losses))
         done += steps
         if checkpoint is not None:
@@ -142,7 +171,7 @@ def fit_seeds(
                 flush=True,
             )
     if timings is not None:
-        timings.update(compile_s=compile_s, run_s=time.perf_counter() - start - compile_s)
+        timings.update(compile_s=runners.compile_s, run_s=time.perf_counter() - start - runners.compile_s)
     return state.params, np.concatenate(losses, axis=1)
 
 
