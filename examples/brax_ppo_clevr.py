@@ -50,8 +50,7 @@ def evaluate(env, policy, episodes: int, seed: int) -> float:
     return float(jnp.mean(jax.jit(jax.vmap(episode))(keys)))
 
 
-def main(argv: list[str] | None = None) -> int:
-    os.environ.setdefault("XLA_FLAGS", CPU_XLA_FLAG)
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--timesteps", type=int, default=5_000_000, help="env steps of training")
     parser.add_argument("--seed", type=int, default=0)
@@ -60,22 +59,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.timesteps < 100_000:
         parser.error("--timesteps must be >= 100000")
+    return args
 
-    env = envs.make("clevr", physics=args.physics, goal_observation=True)
-    start = time.perf_counter()
-    curve = []
 
-    def progress(step, metrics):
-        success = float(metrics.get("eval/episode_success", float("nan")))
-        curve.append({"env_steps": int(step), "success": success, "seconds": round(time.perf_counter() - start, 1)})
-        print(f"{step:>10,d} env steps  eval success {success:.3f}  {time.perf_counter() - start:7.0f} s", flush=True)
-
+def train(env, timesteps: int, seed: int, progress):
+    """Brax's PPO on ``env`` (``progress(step, metrics)`` after each evaluation); returns (make_policy, params)."""
     network_factory = functools.partial(
         ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(256, 256), value_hidden_layer_sizes=(256, 256)
     )
     make_policy, params, _ = ppo.train(
         environment=env,
-        num_timesteps=args.timesteps,
+        num_timesteps=timesteps,
         episode_length=env.episode_length,
         wrap_env_fn=envs.wrap_for_brax_training,
         num_envs=256,
@@ -92,8 +86,24 @@ def main(argv: list[str] | None = None) -> int:
         num_eval_envs=256,
         network_factory=network_factory,
         progress_fn=progress,
-        seed=args.seed,
+        seed=seed,
     )
+    return make_policy, params
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("XLA_FLAGS", CPU_XLA_FLAG)
+    args = parse_args(argv)
+    env = envs.make("clevr", physics=args.physics, goal_observation=True)
+    start = time.perf_counter()
+    curve = []
+
+    def progress(step, metrics):
+        success = float(metrics.get("eval/episode_success", float("nan")))
+        curve.append({"env_steps": int(step), "success": success, "seconds": round(time.perf_counter() - start, 1)})
+        print(f"{step:>10,d} env steps  eval success {success:.3f}  {time.perf_counter() - start:7.0f} s", flush=True)
+
+    make_policy, params = train(env, args.timesteps, args.seed, progress)
     train_seconds = time.perf_counter() - start
     success = evaluate(env, make_policy(params, deterministic=True), episodes=2000, seed=args.seed + 1)
     summary = {
