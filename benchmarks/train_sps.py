@@ -59,18 +59,13 @@ def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: i
     }
 
 
-def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
-    """Env steps/s of SB3 PPO with 2 envs driving the original-style numpy env (``benchmarks.original_style``: one
-    Python loop of ``mj_step`` substeps per action, as the original pipeline ran), observation = [obs, goal one-hot].
-    """
+def _original_style_vec_env(env_name: str):
+    """2 original-style numpy envs (``benchmarks.original_style``) as SB3's normalised-reward ``DummyVecEnv``,
+    observation = [obs, goal one-hot]."""
     import gymnasium
-    import torch
-    from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from benchmarks.original_style import ORIGINAL_ENVS
-
-    torch.set_num_threads(1)
 
     class Adapter(gymnasium.Env):
         def __init__(self, seed: int):
@@ -93,7 +88,18 @@ def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
             obs, reward, terminated, truncated, info = self.env.step(action)
             return self._obs(obs, info), reward, terminated, truncated, info
 
-    vec = VecNormalize(DummyVecEnv([lambda i=i: Adapter(i) for i in range(2)]), norm_obs=False, norm_reward=True)
+    return VecNormalize(DummyVecEnv([lambda i=i: Adapter(i) for i in range(2)]), norm_obs=False, norm_reward=True)
+
+
+def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
+    """Env steps/s of SB3 PPO with 2 envs driving the original-style numpy env (``benchmarks.original_style``: one
+    Python loop of ``mj_step`` substeps per action, as the original pipeline ran), observation = [obs, goal one-hot].
+    """
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    vec = _original_style_vec_env(env_name)
     policy_kwargs = {"net_arch": {"pi": [32, 64, 64], "vf": [32, 64, 64]}, "activation_fn": torch.nn.Tanh}
     model = PPO(
         "MlpPolicy",
