@@ -1,18 +1,10 @@
 """TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-from typing import Any
-
-from experiments.pipeline import command, default_config
-from talar_jax import runtime
+from experiments.config import default_config
+from experiments.pipeline import command
 
 DEFAULT = default_config("clevr")
-_command = command("clevr")
-
-
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    runtime.start()
-    return _command(argv)
-
+main = command("clevr")
 
 if __name__ == "__main__":
     main()

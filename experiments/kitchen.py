@@ -1,18 +1,10 @@
 """TALAR on FrankaKitchen: ``python -m experiments.kitchen --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-from typing import Any
-
-from experiments.pipeline import command, default_config
-from talar_jax import runtime
+from experiments.config import default_config
+from experiments.pipeline import command
 
 DEFAULT = default_config("kitchen")
-_command = command("kitchen")
-
-
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    runtime.start()
-    return _command(argv)
-
+main = command("kitchen")
 
 if __name__ == "__main__":
     main()

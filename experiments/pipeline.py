@@ -23,6 +23,7 @@ from experiments.methods import MethodContext, MethodSetup, get_method
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
 from experiments.reports import write_deployment_strip, write_report
+from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import build_cache, load_encoder
@@ -168,6 +169,7 @@ def command(env: str):
     on the command line; a bad option prints one line and exits with status 2 before any stage runs."""
 
     def main(argv: list[str] | None = None) -> dict[str, Any]:
+        runtime.start()
         config = tyro.cli(ExperimentConfig, default=default_config(env), args=argv, config=CLI_CONFIG)
         return run(checked_or_exit(config))
 
