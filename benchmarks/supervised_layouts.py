@@ -50,8 +50,7 @@ def time_fit(fit, data, extra: tuple, seeds: int, steps: int) -> float:
     return (time.perf_counter() - start) / steps
 
 
-def main() -> None:
-    runtime.configure()  # with the compile cache: steps are timed compile apart
+def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="kitchen")
     parser.add_argument("--dataset", type=Path, required=True, help="an oracle stage's dataset/ folder")
@@ -68,7 +67,55 @@ def main() -> None:
         default=[0],
         help="also time the game with rg_token_slots = each (0: every token slot of the longest instruction)",
     )
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def time_layouts(args: argparse.Namespace, fits: dict[str, tuple], data, per_row) -> list[dict]:
+    """One row per fit: ms per step in the layout the fits choose and in the per-row layout."""
+    results = []
+    for name, (fit, extra) in fits.items():
+        cheap = time_fit(fit, data, extra, args.seeds, args.steps)
+        plain = time_fit(fit, per_row, extra, args.seeds, args.steps)
+        results.append({"fit": name, "chosen_ms_per_step": 1000 * cheap, "per_row_ms_per_step": 1000 * plain})
+        print(
+            f"{args.env} {name}: chosen layout {1000 * cheap:.1f} ms/step, per-row {1000 * plain:.1f} ms/step "
+            f"({plain / cheap:.2f}x)",
+            flush=True,
+        )
+    return results
+
+
+def time_prefix_dims(args: argparse.Namespace, config, cache, raw_data, rg: dict) -> None:
+    """Adds to the game's row ``rg`` its ms per step with ``receiver_prefix_dims`` = each ``--prefix-dims``."""
+    for dims in args.prefix_dims:
+        projected_config = dataclasses.replace(config, receiver_prefix_dims=dims)
+        fit = make_train_task_language(projected_config, cache.vocab_size, cache.max_tokens)
+        projected = time_fit(fit, prepare_referential_data(projected_config, raw_data), (), args.seeds, args.steps)
+        rg[f"prefix_dims_{dims}_ms_per_step"] = 1000 * projected
+        print(
+            f"{args.env} referential game, receiver_prefix_dims={dims}: {1000 * projected:.1f} ms/step "
+            f"({rg['chosen_ms_per_step'] / 1000 / projected:.2f}x faster than the whole embedding)",
+            flush=True,
+        )
+
+
+def time_token_slots(args: argparse.Namespace, config, cache, data, rg: dict) -> None:
+    """Adds to the game's row ``rg`` its ms per step with ``rg_token_slots`` = each ``--token-slots``."""
+    for slots in args.token_slots:
+        slotted_config = dataclasses.replace(config, rg_token_slots=slots or None)
+        fit = make_train_task_language(slotted_config, cache.vocab_size, cache.max_tokens)
+        slotted = time_fit(fit, data, (), args.seeds, args.steps)
+        rg[f"token_slots_{slots}_ms_per_step"] = 1000 * slotted
+        print(
+            f"{args.env} referential game, rg_token_slots={slots or 'every slot'}: {1000 * slotted:.1f} ms/step "
+            f"(recipe: {config.rg_token_slots or 'every slot'}, {rg['chosen_ms_per_step']:.1f} ms/step)",
+            flush=True,
+        )
+
+
+def main() -> None:
+    runtime.configure()  # with the compile cache: steps are timed compile apart
+    args = parse_args()
     cache = build_cache(args.env, progress=False)
     raw_data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
     config = get_recipe(args.env).talar
@@ -84,37 +131,9 @@ def main() -> None:
         "referential game": (make_train_task_language(config, cache.vocab_size, cache.max_tokens), ()),
         "translator": (make_train_translator(config), (targets,)),
     }
-    results = []
-    for name, (fit, extra) in fits.items():
-        cheap = time_fit(fit, data, extra, args.seeds, args.steps)
-        plain = time_fit(fit, per_row, extra, args.seeds, args.steps)
-        results.append({"fit": name, "chosen_ms_per_step": 1000 * cheap, "per_row_ms_per_step": 1000 * plain})
-        print(
-            f"{args.env} {name}: chosen layout {1000 * cheap:.1f} ms/step, per-row {1000 * plain:.1f} ms/step "
-            f"({plain / cheap:.2f}x)",
-            flush=True,
-        )
-    rg = results[0]
-    for dims in args.prefix_dims:
-        projected_config = dataclasses.replace(config, receiver_prefix_dims=dims)
-        fit = make_train_task_language(projected_config, cache.vocab_size, cache.max_tokens)
-        projected = time_fit(fit, prepare_referential_data(projected_config, raw_data), (), args.seeds, args.steps)
-        rg[f"prefix_dims_{dims}_ms_per_step"] = 1000 * projected
-        print(
-            f"{args.env} referential game, receiver_prefix_dims={dims}: {1000 * projected:.1f} ms/step "
-            f"({rg['chosen_ms_per_step'] / 1000 / projected:.2f}x faster than the whole embedding)",
-            flush=True,
-        )
-    for slots in args.token_slots:
-        slotted_config = dataclasses.replace(config, rg_token_slots=slots or None)
-        fit = make_train_task_language(slotted_config, cache.vocab_size, cache.max_tokens)
-        slotted = time_fit(fit, data, (), args.seeds, args.steps)
-        rg[f"token_slots_{slots}_ms_per_step"] = 1000 * slotted
-        print(
-            f"{args.env} referential game, rg_token_slots={slots or 'every slot'}: {1000 * slotted:.1f} ms/step "
-            f"(recipe: {config.rg_token_slots or 'every slot'}, {rg['chosen_ms_per_step']:.1f} ms/step)",
-            flush=True,
-        )
+    results = time_layouts(args, fits, data, per_row)
+    time_prefix_dims(args, config, cache, raw_data, results[0])
+    time_token_slots(args, config, cache, data, results[0])
     sizes = {
         "rows_per_rg_step": rows,
         "distinct_training_prefixes": int(data.prefix_table.shape[0]),
