@@ -137,41 +137,41 @@ def _train_policy(args: OracleArgs, env, conditioner) -> tuple[dict, Any]:
     return summary, jax.tree.map(lambda leaf: leaf[0], result.params)
 
 
-def run(args: OracleArgs) -> float:
-    """Trains (or resumes) the oracle, writes ``oracle.json`` and the dataset; returns the oracle's success."""
+def _collector_parts(args: OracleArgs, collector: str) -> tuple[dict[str, Any], Any, dict[str, Any]]:
+    """(env options, behaviour, settings) of the collector: the recipe's scripted one, or ({}, None, {}) for a policy
+    (the behaviour comes from the trained oracle)."""
+    if collector != "scripted":
+        return {}, None, {}
     recipe = get_recipe(args.env)
-    collector = collector_of(args)
-    if collector == "scripted":
-        if recipe.scripted_collector is None:
-            raise ValueError(f"env {args.env!r} has no scripted collector; use --collector policy")
-        options, behaviour, settings = recipe.scripted_collector()
-    else:
-        options, behaviour, settings = {}, None, {}
-    env = envs.make(args.env, physics=args.physics, **options)
-    conditioner = GoalOneHotConditioner(env.num_goals)
-    if collector == "policy":
-        summary, seed_params = _train_policy(args, env, conditioner)
-    else:
-        summary, seed_params = {"collector": "scripted", **settings, "env_steps": 0}, None
+    if recipe.scripted_collector is None:
+        raise ValueError(f"env {args.env!r} has no scripted collector; use --collector policy")
+    return recipe.scripted_collector()
 
-    summary = {"env": args.env, "physics": args.physics, **summary}
-    write_json_atomic(args.out / "oracle.json", summary)
 
-    num_tuples = args.num_tuples or (1_000 if args.quick else recipe.num_tuples)
-    dataset_dir = args.out / "dataset"
-    existing = TaskDataset.load(dataset_dir) if (dataset_dir / "task_dataset.npz").exists() else None
-    same_oracle = existing is not None and existing.config.get("env_steps") == summary["env_steps"]
+def _dataset_of_this_oracle(
+    dataset_dir: Path, summary: dict[str, Any], num_tuples: int, collector: str
+) -> TaskDataset | None:
+    """The dataset ``dataset_dir`` holds when it is this oracle's (same env steps, size and collector), else None."""
+    if not (dataset_dir / "task_dataset.npz").exists():
+        return None
+    existing = TaskDataset.load(dataset_dir)
+    same_oracle = existing.config.get("env_steps") == summary["env_steps"]
     if same_oracle and len(existing) == num_tuples and existing.config.get("collector", "policy") == collector:
-        print(f"dataset: {dataset_dir} already holds {len(existing)} tuples of this oracle")
-        return float(existing.config.get("oracle_success", summary.get("success", 0.0)))
+        return existing
+    return None
+
+
+def _collect(
+    args: OracleArgs, env, conditioner, behaviour, seed_params, collector: str, summary: dict[str, Any], num_tuples: int
+) -> TaskDataset:
+    """The task dataset of the collector's behaviour (the trained policy's when the collector has none)."""
     instructions = load_instructions(args.env, "train")
     sampler = InstructionSampler({"train": (instructions.goal_cache_rows(), instructions.goal_sentence_counts)})
-    start = time.perf_counter()
     if behaviour is None:
         hidden_sizes = oracle_ppo_config(args).hidden_sizes
         networks = make_ppo_networks(env.observation_size, conditioner.size, env.action_spec, hidden_sizes)
         behaviour = policy_behaviour(networks, seed_params, conditioner)
-    dataset = collect_task_dataset(
+    return collect_task_dataset(
         env,
         behaviour,
         num_tuples,
@@ -190,6 +190,31 @@ def run(args: OracleArgs) -> float:
             "oracle_success": summary.get("success"),
         },
     )
+
+
+def run(args: OracleArgs) -> float:
+    """Trains (or resumes) the oracle, writes ``oracle.json`` and the dataset; returns the oracle's success."""
+    recipe = get_recipe(args.env)
+    collector = collector_of(args)
+    options, behaviour, settings = _collector_parts(args, collector)
+    env = envs.make(args.env, physics=args.physics, **options)
+    conditioner = GoalOneHotConditioner(env.num_goals)
+    if collector == "policy":
+        summary, seed_params = _train_policy(args, env, conditioner)
+    else:
+        summary, seed_params = {"collector": "scripted", **settings, "env_steps": 0}, None
+
+    summary = {"env": args.env, "physics": args.physics, **summary}
+    write_json_atomic(args.out / "oracle.json", summary)
+
+    num_tuples = args.num_tuples or (1_000 if args.quick else recipe.num_tuples)
+    dataset_dir = args.out / "dataset"
+    existing = _dataset_of_this_oracle(dataset_dir, summary, num_tuples, collector)
+    if existing is not None:
+        print(f"dataset: {dataset_dir} already holds {len(existing)} tuples of this oracle")
+        return float(existing.config.get("oracle_success", summary.get("success", 0.0)))
+    start = time.perf_counter()
+    dataset = _collect(args, env, conditioner, behaviour, seed_params, collector, summary, num_tuples)
     collection = dataset.config["collection"]
     if collector == "scripted":  # the scripted collector's success is its collection success
         summary["success"] = dataset.config["oracle_success"] = collection["success_rate"]
