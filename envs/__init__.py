@@ -1,20 +1,27 @@
 """Reusable pure-functional MuJoCo/MJX environments (CLEVR-Robot, FrankaKitchen); no dependency on talar_jax.
 
-On a CPU, MJX needs ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` set before JAX starts (deep
-kinematic chains otherwise compile into exponentially slow code); the project's entry points set it.
+``make(name)`` picks the physics with ``default_backend()`` (MuJoCo C where JAX has only a CPU, MJX on an
+accelerator). On a CPU, MJX needs ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` set before JAX starts (deep
+kinematic chains otherwise compile about twice as slowly): building MJX physics sets it while that is still possible
+and warns otherwise (``envs.runtime``). With Gymnasium installed, importing ``envs`` registers every env with it
+(``talar_jax/Clevr-v0``, ``talar_jax/Kitchen-v0``, ... : ``gymnasium_id(name)``).
 """
 
 from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.goals import resolve_goal
 from envs.instructions import InstructionFormat
 from envs.physics import PHYSICS_BACKENDS, CPhysics, MjxPhysics, Physics, PhysicsState, default_backend, make_physics
 from envs.registry import (
     get_default_config,
+    goal_names,
+    gymnasium_id,
     instruction_envs,
     instruction_format,
     make,
     model_fingerprint,
     register_environment,
     register_instruction_format,
+    register_with_gymnasium,
     registered_names,
 )
 from envs.wrappers import (
@@ -31,6 +38,10 @@ from envs import clevr as _clevr  # noqa: F401  isort: skip
 from envs import kitchen as _kitchen  # noqa: F401  isort: skip
 
 ALL_ENVS: tuple[str, ...] = registered_names()
+
+# Imports Gymnasium's registry only when Gymnasium is installed (tens of milliseconds next to JAX and MuJoCo's
+# seconds); the adapters themselves load at the first gymnasium.make or to_gymnasium.
+register_with_gymnasium()
 
 _GYMNASIUM_ADAPTERS = ("to_gymnasium", "to_gymnasium_vector")
 
@@ -63,6 +74,8 @@ __all__ = [
     "Wrapper",
     "default_backend",
     "get_default_config",
+    "goal_names",
+    "gymnasium_id",
     "instruction_envs",
     "instruction_format",
     "make",
@@ -70,6 +83,9 @@ __all__ = [
     "model_fingerprint",
     "register_environment",
     "register_instruction_format",
+    "register_with_gymnasium",
+    "registered_names",
+    "resolve_goal",
     "to_gymnasium",
     "to_gymnasium_vector",
     "wrap_for_brax_training",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import numbers
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -18,7 +19,8 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from envs.physics import Physics, PhysicsState, make_physics
+from envs.goals import describe_valid_goals, resolve_goal
+from envs.physics import Physics, PhysicsState, default_backend, make_physics
 
 
 @struct.dataclass
@@ -117,12 +119,14 @@ class Env(abc.ABC):
     }
     """Free camera of ``render`` (``lookat``, ``distance``, ``azimuth``, ``elevation``)."""
 
-    def __init__(self, config: EnvConfig | None = None, physics: str = "mjx"):
+    def __init__(self, config: EnvConfig | None = None, physics: str | None = None):
+        """``physics``: ``"mjx"``, ``"c"``, or None for ``envs.default_backend()`` (C on a CPU, MJX on an
+        accelerator)."""
         self.config = config if config is not None else self.config_class()
         if not isinstance(self.config, self.config_class):
             raise TypeError(f"{type(self).__name__} expects a {self.config_class.__name__}, got {type(self.config)}")
         self.mj_model = self.load_model()
-        self.physics: Physics = make_physics(physics, self.mj_model)
+        self.physics: Physics = make_physics(default_backend() if physics is None else physics, self.mj_model)
 
     def load_model(self) -> mujoco.MjModel:
         """Compiles the env's MJCF (override to edit the spec before compiling)."""
@@ -130,8 +134,13 @@ class Env(abc.ABC):
 
     # --- the functional API -------------------------------------------------------------------------
     @abc.abstractmethod
-    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
-        """Samples an initial state and a task (the task of goal id ``goal`` when given, for envs with goal ids)."""
+    def reset(self, rng: jax.Array, goal: jax.Array | int | str | None = None) -> State:
+        """Samples an initial state and a task (the task of goal ``goal`` when given, for envs with goal ids).
+
+        ``goal`` is a goal id (an int or an integer array) or a goal name (``goal_names``). Implementations pass it
+        through ``check_goal`` first: a concrete goal out of range raises ``ValueError``; a traced one (inside
+        ``jit`` or ``vmap``) cannot be checked and must be kept in [0, num_goals) by the caller.
+        """
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
@@ -156,6 +165,40 @@ class Env(abc.ABC):
     @property
     @abc.abstractmethod
     def num_goals(self) -> int: ...
+
+    # --- goals --------------------------------------------------------------------------------------
+    @classmethod
+    def goal_names_of(cls, config: EnvConfig) -> tuple[str, ...]:
+        """The name of each goal id of an env with ``config`` (``num_goals`` of them), or () when its goals have
+        ids only. A classmethod so that names resolve without building the env (``envs.goal_names``)."""
+        return ()
+
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        """The name of each goal id (what ``goal_id``, ``reset`` and the Gymnasium adapters accept besides ids)."""
+        return type(self).goal_names_of(self.config)
+
+    def goal_id(self, goal: int | str) -> int:
+        """The goal id of an id or a goal name (``envs.goals.resolve_goal``), or one ``ValueError`` line."""
+        return resolve_goal(goal, self.goal_names, self.num_goals, type(self).__name__)
+
+    def check_goal(self, goal: jax.Array | int | str | None) -> jax.Array | int | None:
+        """``reset``'s goal, checked when it is concrete: None stays None, an int or a name becomes its goal id, a
+        concrete integer array is returned as is once every entry lies in [0, num_goals). A traced goal (inside
+        ``jit``/``vmap``) is returned untouched: its value is unknown while tracing, so nothing is added to the
+        compiled program."""
+        if goal is None or isinstance(goal, jax.core.Tracer):
+            return goal
+        if isinstance(goal, str | numbers.Integral):
+            return self.goal_id(goal)
+        array = np.asarray(goal)
+        if not np.issubdtype(array.dtype, np.integer):
+            valid = describe_valid_goals(self.goal_names, self.num_goals)
+            raise ValueError(f"goal of dtype {array.dtype} for {type(self).__name__} is not a goal id; give {valid}")
+        outside = array[(array < 0) | (array >= self.num_goals)]
+        if outside.size:
+            self.goal_id(int(outside.flat[0]))  # raises the out-of-range error
+        return goal
 
     @property
     @abc.abstractmethod

@@ -31,7 +31,7 @@ from envs.registry import make
 _NO_GOAL = -1  # "the env samples the goal" in the jitted reset's goal argument
 
 
-def _build_env(name_or_env: str | Env, physics: str, options: dict[str, Any]) -> Env:
+def _build_env(name_or_env: str | Env, physics: str | None, options: dict[str, Any]) -> Env:
     """``envs.make(name, physics=physics, **options)``, or an already built ``Env`` as is (then without options)."""
     if isinstance(name_or_env, str):
         return make(name_or_env, physics=physics, **options)
@@ -46,12 +46,8 @@ def _build_env(name_or_env: str | Env, physics: str, options: dict[str, Any]) ->
 
 
 def _check_goal(env: Env, goal: Any) -> int:
-    """A goal id in [0, num_goals) as an int, or ``_NO_GOAL`` for None."""
-    if goal is None:
-        return _NO_GOAL
-    if isinstance(goal, bool) or not isinstance(goal, numbers.Integral) or not 0 <= goal < env.num_goals:
-        raise ValueError(f"goal must be None or an int in [0, {env.num_goals}) for {type(env).__name__}, got {goal!r}")
-    return int(goal)
+    """The goal id of an id or a goal name (``env.goal_id``), or ``_NO_GOAL`` for None."""
+    return _NO_GOAL if goal is None else env.goal_id(goal)
 
 
 def _check_episode_length(env: Env, episode_length: int | None) -> int:
@@ -131,7 +127,8 @@ class GymnasiumEnv(gym.Env):
     """One ``envs.Env`` as a ``gymnasium.Env`` (build it with ``to_gymnasium``).
 
     ``reset(seed=s)`` makes the episodes that follow deterministic; ``reset()`` continues from the adapter's key.
-    ``reset(options={"goal": g})`` sets the goal of that episode (default: the adapter's ``goal``; None samples).
+    ``reset(options={"goal": g})`` sets the goal of that episode, an id or a name (default: the adapter's ``goal``;
+    None samples).
     ``info`` holds the env's metrics as floats (``"success"`` always) and ``"goal"``, the episode's goal id (-1 for
     tasks without one). ``state`` is the current JAX ``State``.
     """
@@ -142,7 +139,7 @@ class GymnasiumEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.jax_env = env
-        self.goal = None if _check_goal(env, goal) == _NO_GOAL else int(goal)
+        self.goal = None if goal is None else env.goal_id(goal)
         self.episode_length = _check_episode_length(env, episode_length)
         self.render_mode = render_mode
         # One env step holds the control for substeps x timestep seconds (CLEVR 0.4 s, kitchen 0.08 s).
@@ -205,8 +202,8 @@ class GymnasiumVectorEnv(VectorEnv):
     the goal id of each observation's episode; ``info["final_info"]`` holds the metrics and goal of the episodes
     that ended (masked like ``final_obs``). Every info key ``k`` comes with Gymnasium's mask ``"_k"``.
 
-    ``reset(seed=s)`` makes the run deterministic; ``reset(options={"goal": g})`` sets the goal (an int, or one per
-    sub-env) of the episodes it starts and of the auto-resets after it (default: the adapter's ``goal``).
+    ``reset(seed=s)`` makes the run deterministic; ``reset(options={"goal": g})`` sets the goal (an id or a name, or
+    one per sub-env) of the episodes it starts and of the auto-resets after it (default: the adapter's ``goal``).
     """
 
     def __init__(self, env: Env, num_envs: int, *, goal: Any = None, episode_length: int | None = None):
@@ -249,8 +246,9 @@ class GymnasiumVectorEnv(VectorEnv):
         self.state: State | None = None
 
     def _goal_array(self, goal: Any) -> jax.Array:
-        """(num_envs,) int32 goal ids (-1: sampled) from None, an int or a sequence of num_envs of those."""
-        goals = list(goal) if isinstance(goal, Sequence | np.ndarray) else [goal] * self.num_envs
+        """(num_envs,) int32 goal ids (-1: sampled) from None, an id, a name or a sequence of num_envs of those."""
+        one = goal is None or isinstance(goal, str) or np.ndim(goal) == 0  # a name is a Sequence too
+        goals = [goal] * self.num_envs if one else list(goal)
         if len(goals) != self.num_envs:
             raise ValueError(f"goal has {len(goals)} entries for {self.num_envs} sub-envs")
         return jnp.asarray([_check_goal(self.jax_env, g) for g in goals], jnp.int32)
@@ -298,10 +296,10 @@ class GymnasiumVectorEnv(VectorEnv):
 
 def to_gymnasium(
     name_or_env: str | Env,
-    physics: str = "c",
+    physics: str | None = None,
     *,
     render_mode: str | None = None,
-    goal: int | None = None,
+    goal: int | str | None = None,
     episode_length: int | None = None,
     **options: Any,
 ) -> GymnasiumEnv:
@@ -311,9 +309,11 @@ def to_gymnasium(
     Args:
         name_or_env: one of ``envs.ALL_ENVS``, or an ``envs.Env`` (then ``physics`` is its own and ``options``
             must be empty).
-        physics: ``"c"`` (MuJoCo's C engine, the fast choice on a CPU) or ``"mjx"``.
+        physics: ``"c"`` (MuJoCo's C engine, the fast choice on a CPU), ``"mjx"``, or None for
+            ``envs.default_backend()`` (C where JAX has only a CPU, MJX on an accelerator), as ``envs.make``.
         render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame).
-        goal: the goal id of every episode, in [0, env.num_goals); None samples one per episode.
+        goal: the goal of every episode: an id in [0, env.num_goals) or a goal name (``env.goal_names``, e.g.
+            ``"microwave"``); None samples one per episode.
         episode_length: steps before ``truncated`` (default: the env config's ``episode_length``).
         **options: fields of the env's config (``envs.get_default_config(name)``).
     """
@@ -324,9 +324,9 @@ def to_gymnasium(
 def to_gymnasium_vector(
     name_or_env: str | Env,
     num_envs: int,
-    physics: str = "c",
+    physics: str | None = None,
     *,
-    goal: int | Sequence[int | None] | None = None,
+    goal: int | str | Sequence[int | str | None] | None = None,
     episode_length: int | None = None,
     **options: Any,
 ) -> GymnasiumVectorEnv:

@@ -5,7 +5,8 @@ Both backends step the *same* compiled ``mujoco.MjModel`` and exchange the same 
 physics step differs:
 
 * ``MjxPhysics``: ``mujoco.mjx`` with ``impl="jax"``. Pure JAX, so it runs on CPU/GPU/TPU, is jit-, vmap- and
-  grad-able. On a CPU it needs ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` (see the README).
+  grad-able. On a CPU it needs ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false``, which building it sets while JAX
+  has not started yet and otherwise warns about (``envs.runtime``).
 * ``CPhysics``: MuJoCo's C engine, reached through ``jax.pure_callback`` with a batched host function that
   runs ``mujoco.rollout`` (multi-threaded). The env stays jit- and vmap-able (vmap turns into one batched
   host call), but not differentiable. On a CPU this is the fast backend.
@@ -25,6 +26,8 @@ import mujoco
 import numpy as np
 from flax import struct
 from mujoco import rollout as mj_rollout
+
+from envs.runtime import prepare_mjx
 
 # mujoco.mjx prints "Failed to import warp / mujoco_warp" when the optional Warp backend is absent; only its
 # pure-JAX implementation is used here, so that notice is noise for every user.
@@ -76,6 +79,8 @@ class MjxPhysics(Physics):
     name = "mjx"
 
     def __init__(self, mj_model: mujoco.MjModel):
+        # Before put_model, whose arrays are JAX's first computation in a fresh process: the flag still takes then.
+        prepare_mjx()
         super().__init__(mj_model)
         self.mjx_model = mjx.put_model(mj_model, impl="jax")
 
@@ -208,5 +213,7 @@ def make_physics(backend: str, mj_model: mujoco.MjModel) -> Physics:
 
 
 def default_backend() -> str:
-    """The faster backend for the current default JAX device: MJX on GPU/TPU, MuJoCo C on CPU."""
+    """The faster backend for the current default JAX device: MJX on GPU/TPU, MuJoCo C on CPU. The one rule behind
+    every default choice of physics (``envs.make``, the Gymnasium adapters, the experiment commands); asking it
+    starts JAX's backends."""
     return "c" if jax.default_backend() == "cpu" else "mjx"

@@ -12,14 +12,53 @@ from envs.physics import PHYSICS_BACKENDS
 
 _REGISTRY: dict[str, tuple[type[Env], dict[str, Any]]] = {}
 _INSTRUCTION_FORMATS: dict[str, InstructionFormat] = {}
+GYMNASIUM_NAMESPACE = "talar_jax"
+_gymnasium_registry: Any = None  # gymnasium's registry module once register_with_gymnasium found it
 
 
 def register_environment(name: str, env_class: type[Env], **config_overrides: Any) -> None:
-    """Registers ``env_class`` under ``name``; ``config_overrides`` are applied to its default config."""
+    """Registers ``env_class`` under ``name``; ``config_overrides`` are applied to its default config. Once ``envs``
+    is imported with Gymnasium installed, the env is also registered with Gymnasium (``gymnasium_id(name)``)."""
     if name in _REGISTRY:
         raise ValueError(f"environment {name!r} is already registered")
     replace_config(env_class.config_class(), config_overrides)  # fail early on bad overrides
     _REGISTRY[name] = (env_class, dict(config_overrides))
+    if _gymnasium_registry is not None:
+        _register_gymnasium_id(name)
+
+
+def gymnasium_id(name: str) -> str:
+    """The Gymnasium id of a registered env: ``"clevr-arrangement"`` -> ``"talar_jax/ClevrArrangement-v0"``."""
+    return f"{GYMNASIUM_NAMESPACE}/{''.join(part.capitalize() for part in name.split('-'))}-v0"
+
+
+def _register_gymnasium_id(name: str) -> None:
+    env_id = gymnasium_id(name)
+    if env_id in _gymnasium_registry.registry:  # e.g. envs reloaded: Gymnasium would warn about overriding it
+        return
+    # Entry points are strings, so the adapters (and Gymnasium's vector module) load at the first gymnasium.make.
+    _gymnasium_registry.register(
+        id=env_id,
+        entry_point="envs.gymnasium_adapter:to_gymnasium",
+        vector_entry_point="envs.gymnasium_adapter:to_gymnasium_vector",
+        kwargs={"name_or_env": name},
+    )
+
+
+def register_with_gymnasium() -> bool:
+    """Registers every env with Gymnasium (``gymnasium.make(gymnasium_id(name), **options)`` builds
+    ``envs.to_gymnasium(name, **options)``; ``gymnasium.make_vec`` the vector adapter), and every env registered
+    later. ``import envs`` calls it; without Gymnasium (an optional dependency) it does nothing and returns False.
+    """
+    global _gymnasium_registry
+    try:
+        from gymnasium.envs import registration
+    except ImportError:
+        return False
+    _gymnasium_registry = registration
+    for name in _REGISTRY:
+        _register_gymnasium_id(name)
+    return True
 
 
 def registered_names() -> tuple[str, ...]:
@@ -46,20 +85,30 @@ def model_fingerprint(name: str) -> str:
     return hashlib.sha256(env_class.xml_path.read_bytes()).hexdigest()[:16]
 
 
-def make(name: str, *, physics: str = "mjx", **overrides: Any) -> Env:
+def make(name: str, *, physics: str | None = None, **overrides: Any) -> Env:
     """Builds a registered env.
 
     Args:
         name: one of ``envs.ALL_ENVS``.
-        physics: ``"mjx"`` (pure JAX, default; what runs on GPU/TPU) or ``"c"`` (MuJoCo's C engine through a
-            batched callback; the fast choice on a CPU).
+        physics: ``"mjx"`` (pure JAX: jit-, vmap- and grad-able, the fast choice on a GPU/TPU) or ``"c"`` (MuJoCo's
+            C engine through a batched callback: the fast choice on a CPU). None (default) asks
+            ``envs.default_backend()``, the rule the experiment commands and the Gymnasium adapters follow too:
+            C where JAX has only a CPU, MJX on an accelerator. An explicit value always wins; MJX on a CPU sets
+            (or, once JAX has started, warns about) the XLA flag it needs (``envs.runtime``).
         **overrides: fields of the env's config (see ``get_default_config(name)``).
     """
     env_class, _ = _lookup(name)
-    if physics not in PHYSICS_BACKENDS:
+    if physics is not None and physics not in PHYSICS_BACKENDS:
         raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(PHYSICS_BACKENDS)}")
     config = replace_config(get_default_config(name), overrides)
     return env_class(config, physics=physics)
+
+
+def goal_names(name: str, **overrides: Any) -> tuple[str, ...]:
+    """The name of each goal id of a registered env with ``overrides`` (``Env.goal_names``, without building the
+    env); pair with ``envs.resolve_goal`` to read a goal a person typed."""
+    env_class, _ = _lookup(name)
+    return env_class.goal_names_of(replace_config(get_default_config(name), overrides))
 
 
 def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:

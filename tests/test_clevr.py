@@ -214,6 +214,20 @@ def test_reset_validity(c_env):
     np.testing.assert_allclose(states.data.qvel, 0.0)
 
 
+def test_goals_are_named_by_their_descriptions(c_env):
+    assert c_env.goal_names == tasks.GOAL_NAMES and len(set(tasks.GOAL_NAMES)) == tasks.NUM_GOALS
+    goal = tasks.goal_id(2, 4, 3)  # green right of cyan
+    assert tasks.GOAL_NAMES[goal] == tasks.describe_goal(goal) == "green ball to the right of the cyan ball"
+    task = c_env.reset(jax.random.key(0), goal="Green ball to the right of the cyan ball").task
+    assert (int(task.goal), int(task.source), int(task.destination), int(task.relation)) == (goal, 2, 4, 3)
+    with pytest.raises(ValueError, match=r"goal 80 is out of range for ClevrEnv; give an id in 0\.\.79"):
+        c_env.reset(jax.random.key(0), goal=80)
+    arrangement = envs.make("clevr-arrangement", physics="c")
+    assert arrangement.goal_names == ("arrangement",) and arrangement.num_goals == 1
+    with pytest.raises(ValueError, match=r"goal 1 is out of range for ClevrEnv; give an id in 0\.\.0"):
+        arrangement.reset(jax.random.key(0), goal=1)
+
+
 def test_goal_sampling_skips_satisfied_goals():
     ball_xy = jnp.asarray(_scene((0.0, 0.5), (0.0, 0.15)), jnp.float32)  # red in front of blue, 0.35 apart
     satisfied = np.flatnonzero(tasks.all_goals_success(ball_xy))

@@ -1,5 +1,11 @@
 """Env contract for every registered env (``envs.ALL_ENVS``): shapes, finiteness, no retracing, determinism,
-MJX-vs-C agreement and clear errors. Sizes are read from each env, so new envs are covered by registering them."""
+MJX-vs-C agreement, goals (names, eager checks) and clear errors. Sizes are read from each env, so new envs are covered
+by registering them. Also: the default physics and the CPU XLA flag that MJX needs, seen from a fresh interpreter."""
+
+import json
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -179,3 +185,111 @@ def test_kitchen_hinge_cabinet_is_a_seventh_goal():
     assert envs.make("kitchen-all", physics="c", hinge_cabinet_task=True).reset(
         jax.random.key(0)
     ).task.completed.shape == (7,)
+
+
+# --- goals: names and eager checks -----------------------------------------------------------------------------------
+def test_goal_names_resolve_to_their_ids(compiled):
+    env = compiled.c_env
+    names = env.goal_names
+    assert len(names) == env.num_goals and envs.goal_names(compiled.name) == names
+    for goal_id, name in enumerate(names):
+        assert env.goal_id(name) == goal_id == env.goal_id(f"  {name.upper().replace(' ', '_')} ")
+        assert envs.resolve_goal(name, names) == goal_id == envs.resolve_goal(str(goal_id), names)
+    last = env.num_goals - 1
+    by_name, by_id = env.reset(jax.random.key(0), goal=names[last]), env.reset(jax.random.key(0), goal=last)
+    jax.tree.map(np.testing.assert_array_equal, by_name, by_id)
+
+
+def test_reset_rejects_an_out_of_range_goal_eagerly(compiled):
+    env, n = compiled.c_env, compiled.c_env.num_goals
+    for bad in (n, -1, 200, np.int64(n), jnp.int32(n), jnp.array([0, n]), np.array(-1), 1.5, jnp.float32(1), True):
+        with pytest.raises(ValueError, match=rf"give an id in 0\.\.{n - 1}") as error:
+            env.reset(jax.random.key(0), goal=bad)
+        assert "\n" not in str(error.value)
+    with pytest.raises(ValueError, match="unknown goal 'no such goal'"):
+        env.reset(jax.random.key(0), goal="no such goal")
+    assert int(env.reset(jax.random.key(0), goal=jnp.int32(n - 1)).task.goal) in (n - 1, -1)  # -1: a fixed task
+    # Traced goals cannot be checked, and checking adds nothing to the traced program.
+    key, goal = jax.random.key(0), jnp.int32(n - 1)
+    checked = str(jax.make_jaxpr(env.reset)(key, goal))
+    unchecked_env = envs.make(compiled.name, physics="c")
+    unchecked_env.check_goal = lambda goal: goal
+    assert checked == str(jax.make_jaxpr(unchecked_env.reset)(key, goal))
+    jax.jit(jax.vmap(env.reset))(jax.random.split(key, 3), jnp.int32([0, n - 1, 0]))
+
+
+# --- default physics and the CPU XLA flag --------------------------------------------------------------------------
+def test_make_picks_the_default_backend_and_an_explicit_physics_wins(compiled):
+    assert envs.make(compiled.name).backend == envs.default_backend()
+    if jax.default_backend() == "cpu":
+        assert envs.default_backend() == "c"
+    assert compiled.mjx_env.backend == "mjx" and compiled.c_env.backend == "c"
+
+
+def run_fresh(code: str, xla_flags: str | None = None) -> dict:
+    """Runs ``code`` in a fresh interpreter on the CPU, with no XLA_FLAGS (or ``xla_flags``) in its environment, and
+    returns the JSON it prints last."""
+    environment = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAX_PLATFORMS": "cpu"}
+    if xla_flags is not None:
+        environment["XLA_FLAGS"] = xla_flags
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=environment, capture_output=True, text=True, timeout=300, check=False
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+WATCH_WARNINGS = """
+import json, os, warnings
+warnings.simplefilter("always")
+caught = warnings.catch_warnings(record=True)
+record = caught.__enter__()
+"""
+
+
+def test_mjx_on_a_cpu_sets_the_xla_flag_while_jax_has_not_started():
+    code = WATCH_WARNINGS + (
+        "import envs\n"
+        "from envs import runtime\n"
+        "c = envs.make('clevr', physics='c')\n"
+        "after_c = os.environ.get('XLA_FLAGS')\n"
+        "started_before = runtime.backends_initialised()\n"
+        "envs.make('clevr', physics='mjx')\n"
+        "print(json.dumps({'after_c': after_c, 'started_before': started_before, 'flags': os.environ['XLA_FLAGS'],"
+        " 'started_after': runtime.backends_initialised(), 'warnings': [str(w.message) for w in record]}))\n"
+    )
+    out = run_fresh(code)
+    assert out == {
+        "after_c": None,  # C physics needs no flag
+        "started_before": False,
+        "flags": "--xla_cpu_use_fusion_emitters=false",
+        "started_after": True,  # set before JAX started, so XLA read it
+        "warnings": [],
+    }
+    # A user's own value of the option is left as it is, without a warning.
+    mine = "--xla_cpu_use_fusion_emitters=true --xla_force_host_platform_device_count=2"
+    code = WATCH_WARNINGS + (
+        "import envs\nenvs.make('clevr', physics='mjx')\n"
+        "print(json.dumps({'flags': os.environ['XLA_FLAGS'], 'warnings': [str(w.message) for w in record]}))\n"
+    )
+    assert run_fresh(code, xla_flags=mine) == {"flags": mine, "warnings": []}
+
+
+def test_mjx_on_a_cpu_warns_once_when_jax_has_started_without_the_flag():
+    code = WATCH_WARNINGS + (
+        "import jax.numpy as jnp\n"
+        "jnp.zeros(1).block_until_ready()\n"  # JAX has started: XLA_FLAGS is no longer read
+        "import envs\n"
+        "assert envs.make('clevr').backend == 'c'\n"  # the default on a CPU: no flag needed
+        "envs.make('clevr', physics='mjx')\n"
+        "envs.make('clevr-arrangement', physics='mjx')\n"
+        "print(json.dumps({'flags': os.environ.get('XLA_FLAGS'),"
+        " 'warnings': [(str(w.message), w.filename, w.category.__name__) for w in record]}))\n"
+    )
+    out = run_fresh(code)
+    assert out["flags"] is None
+    assert len(out["warnings"]) == 1, out["warnings"]
+    message, filename, category = out["warnings"][0]
+    assert "XLA_FLAGS=--xla_cpu_use_fusion_emitters=false" in message and "twice as long" in message
+    assert "\n" not in message and category == "UserWarning"
+    assert filename == "<string>"  # it points at the user's line, not into envs

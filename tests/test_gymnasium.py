@@ -1,5 +1,6 @@
 """Gymnasium adapters (``envs.to_gymnasium``, ``envs.to_gymnasium_vector``): Gymnasium's env checker on every
-registered env, the batched step against the JAX env's own vmapped step, seeding, auto-reset and clear errors."""
+registered env, the batched step against the JAX env's own vmapped step, seeding, auto-reset, goals by id or name,
+the ids registered with Gymnasium (``gymnasium.make("talar_jax/Kitchen-v0")``) and clear errors."""
 
 import subprocess
 import sys
@@ -142,13 +143,84 @@ def test_goals():
     assert fixed.reset(seed=0)[1]["goal"] == 12
 
 
+def test_goal_names():
+    """Goals by name, as the env's tasks module names them (``env.goal_names``), anywhere a goal id is taken."""
+    kitchen = envs.to_gymnasium("kitchen", goal="microwave")
+    assert kitchen.goal == 0 and kitchen.reset(seed=0)[1]["goal"] == 0
+    assert kitchen.reset(seed=0, options={"goal": "Top Burner"})[1]["goal"] == 4
+    assert kitchen.reset(seed=0, options={"goal": "light_switch"})[1]["goal"] == 2
+    env = single("clevr")
+    name = env.jax_env.goal_names[41]
+    assert env.reset(seed=0, options={"goal": name})[1]["goal"] == 41
+    vec = vector("clevr")
+    names = [name, None, "7", 7] * (NUM_ENVS // 4)
+    assert vec.reset(seed=0, options={"goal": names})[1]["goal"][[0, 2, 3]].tolist() == [41, 7, 7]
+    assert vec.reset(seed=0, options={"goal": name})[1]["goal"].tolist() == [41] * NUM_ENVS
+    hinge = envs.to_gymnasium("kitchen", goal="hinge cabinet", hinge_cabinet_task=True)
+    assert hinge.goal == 6
+    with pytest.raises(ValueError, match="unknown goal 'hinge cabinet' for KitchenEnv"):
+        envs.to_gymnasium("kitchen", goal="hinge cabinet")
+
+
+def test_default_physics_is_the_default_backend():
+    assert single("clevr").jax_env.backend == envs.default_backend()
+    assert envs.to_gymnasium("kitchen", physics="mjx").jax_env.backend == "mjx"  # an explicit physics wins
+
+
+REGISTERED_IDS = {
+    "clevr": "talar_jax/Clevr-v0",
+    "clevr-arrangement": "talar_jax/ClevrArrangement-v0",
+    "kitchen": "talar_jax/Kitchen-v0",
+    "kitchen-all": "talar_jax/KitchenAll-v0",
+}
+
+
+def test_every_env_is_registered_with_gymnasium():
+    from envs.gymnasium_adapter import GymnasiumEnv, GymnasiumVectorEnv
+
+    assert {name: envs.gymnasium_id(name) for name in envs.ALL_ENVS} == REGISTERED_IDS
+    for name, env_id in REGISTERED_IDS.items():
+        spec = gym.spec(env_id)
+        assert spec.entry_point == "envs.gymnasium_adapter:to_gymnasium" and spec.kwargs == {"name_or_env": name}
+        assert spec.vector_entry_point == "envs.gymnasium_adapter:to_gymnasium_vector"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert envs.register_with_gymnasium()  # again: nothing new, and no "overriding" warning
+    env = gym.make("talar_jax/Kitchen-v0", goal="microwave")
+    assert env.spec.id == "talar_jax/Kitchen-v0"
+    assert env.spec.kwargs == {"name_or_env": "kitchen", "goal": "microwave"}
+    assert isinstance(env.unwrapped, GymnasiumEnv) and env.unwrapped.jax_env.backend == envs.default_backend()
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (30,) and info["goal"] == 0
+    arrangement = gym.make("talar_jax/ClevrArrangement-v0", episode_length=3)
+    assert arrangement.unwrapped.jax_env.config.task == "arrangement" and arrangement.unwrapped.episode_length == 3
+    vec = gym.make_vec("talar_jax/Clevr-v0", num_envs=2, goal="red ball behind the blue ball")
+    assert isinstance(vec, GymnasiumVectorEnv)
+    assert vec.spec.id == "talar_jax/Clevr-v0" and vec.spec.kwargs["goal"] == "red ball behind the blue ball"
+    assert vec.reset(seed=0)[1]["goal"].tolist() == [1, 1]
+
+
+def test_an_env_registered_later_is_registered_with_gymnasium_too():
+    from envs.clevr import ClevrEnv
+
+    envs.register_environment("clevr-collect-test", ClevrEnv, action_type="collect")
+    try:
+        spec = gym.spec("talar_jax/ClevrCollectTest-v0")
+        assert spec.kwargs == {"name_or_env": "clevr-collect-test"}
+    finally:  # leave both registries as they were for the other tests
+        envs.registry._REGISTRY.pop("clevr-collect-test")
+        gym.registry.pop("talar_jax/ClevrCollectTest-v0")
+
+
 def test_clear_errors():
     env = single("clevr")
-    for bad_goal in (80, -1, 1.5, True):
-        with pytest.raises(ValueError, match=r"goal must be None or an int in \[0, 80\)"):
+    for bad_goal in (80, -1, 1.5, True, "purple ball", np.zeros(2, int)):
+        with pytest.raises(ValueError, match=r"for ClevrEnv.*; give an id in 0\.\.79 or a name such as"):
             envs.to_gymnasium("clevr", goal=bad_goal)
-        with pytest.raises(ValueError, match="goal must be"):
+        with pytest.raises(ValueError, match=r"give an id in 0\.\.79"):
             env.reset(options={"goal": bad_goal})
+    with pytest.raises(ValueError, match="unknown goal 'fridge' for KitchenEnv; .* one of the names 'microwave'"):
+        envs.to_gymnasium_vector("kitchen", 2, goal=["microwave", "fridge"])
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(options={"task": 3})
     with pytest.raises(ValueError, match="unknown option"):
@@ -189,7 +261,7 @@ def test_import_envs_without_gymnasium():
     code = (
         "import sys; sys.modules['gymnasium'] = None\n"
         "import envs\n"
-        "assert 'envs.gymnasium_adapter' not in sys.modules\n"
+        "assert 'envs.gymnasium_adapter' not in sys.modules and not envs.register_with_gymnasium()\n"
         "try:\n    envs.to_gymnasium('clevr')\nexcept ImportError:\n    pass\nelse:\n    raise SystemExit(1)\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

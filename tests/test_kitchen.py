@@ -246,8 +246,21 @@ def test_clear_errors(c_env_noiseless):
         KitchenEnv(KitchenConfig(integrator="rk4"), physics="c")
     with pytest.raises(ValueError, match="light switch"):
         tasks.task_id("oven")
+    with pytest.raises(ValueError, match=r"goal 6 is out of range for KitchenEnv; give an id in 0\.\.5 or one of"):
+        c_env_noiseless.reset(jax.random.key(0), goal=6)
+    with pytest.raises(ValueError, match="unknown goal 'hinge cabinet' for KitchenEnv"):
+        c_env_noiseless.reset(jax.random.key(0), goal="hinge cabinet")
     with pytest.raises(ValueError, match="valid options"):
         envs.make("kitchen", physics="c", substep=4)
+
+
+def test_goals_by_sub_task_name(c_env_noiseless):
+    assert c_env_noiseless.goal_names == tasks.TASK_NAMES == envs.goal_names("kitchen-all")
+    assert envs.goal_names("kitchen", hinge_cabinet_task=True) == tasks.ALL_TASK_NAMES
+    assert tasks.task_id("Top_Burner") == tasks.task_id("top burner") == 4
+    assert int(c_env_noiseless.reset(jax.random.key(0), goal="slide cabinet").task.goal) == 3
+    hinge = envs.make("kitchen", physics="c", hinge_cabinet_task=True)
+    assert int(hinge.reset(jax.random.key(0), goal="hinge cabinet").task.goal) == 6
 
 
 # --- the posture term's targets (issue: two sub-tasks never learned) -----------------------------------------

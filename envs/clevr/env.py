@@ -88,7 +88,7 @@ class ClevrEnv(Env):
     # straight above the table: x to the right, y up ("to the left of" reads left, "in front of" reads up)
     render_camera = {"lookat": (0.0, 0.2, -0.3), "distance": 1.75, "azimuth": 90.0, "elevation": -90.0}
 
-    def __init__(self, config: ClevrConfig | None = None, physics: str = "mjx"):
+    def __init__(self, config: ClevrConfig | None = None, physics: str | None = None):
         config = config if config is not None else ClevrConfig()
         if isinstance(config, ClevrConfig):
             if config.task not in TASK_KINDS:
@@ -133,6 +133,12 @@ class ClevrEnv(Env):
         """80 push goals; the arrangement task is a single fixed goal."""
         return 1 if self._arrangement else tasks.NUM_GOALS
 
+    @classmethod
+    def goal_names_of(cls, config: ClevrConfig) -> tuple[str, ...]:
+        """The 80 goals' descriptions (``'red ball in front of the blue ball'``); ``('arrangement',)`` for the
+        arrangement task."""
+        return ("arrangement",) if config.task == "arrangement" else tasks.GOAL_NAMES
+
     @property
     def state_observation_size(self) -> int:
         return 2 * tasks.NUM_BALLS
@@ -154,9 +160,11 @@ class ClevrEnv(Env):
         )
 
     # --- functional API -------------------------------------------------------------------------
-    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
-        """A fresh scene and a goal: uniform over the goals not already met, or ``goal`` when given (the balls are
-        then re-drawn, up to 16 times, until that goal does not already hold)."""
+    def reset(self, rng: jax.Array, goal: jax.Array | int | str | None = None) -> State:
+        """A fresh scene and a goal: uniform over the goals not already met, or ``goal`` (an id or a name; see
+        ``Env.reset``) when given: the balls are then re-drawn, up to 16 times, until that goal does not already
+        hold. The arrangement task has one fixed goal and ignores ``goal`` once checked."""
+        goal = self.check_goal(goal)
         rng_balls, rng_goal = jax.random.split(rng)
         ball_xy = tasks.sample_ball_positions(rng_balls)
         if goal is not None and not self._arrangement:

@@ -49,6 +49,10 @@ def describe_goal(goal: int) -> str:
     return f"{COLORS[GOAL_SOURCE[goal]]} ball {phrase} the {COLORS[GOAL_DESTINATION[goal]]} ball"
 
 
+GOAL_NAMES: tuple[str, ...] = tuple(describe_goal(goal) for goal in range(NUM_GOALS))
+"""The name of each goal id (its description): what ``ClevrEnv.goal_names`` lists and ``reset`` accepts."""
+
+
 # --- pushing (spec section 2.1): action a pushes ball a // 8 in direction a % 8 -------------------------------------
 NUM_DIRECTIONS = 8
 NUM_ACTIONS = NUM_BALLS * NUM_DIRECTIONS  # 40

@@ -140,7 +140,7 @@ class KitchenEnv(Env):
     xml_path = Path(__file__).parent / "xmls" / "kitchen.xml"
     render_camera = {"lookat": (-0.4, 0.45, 1.95), "distance": 2.3, "azimuth": 112.0, "elevation": -28.0}
 
-    def __init__(self, config: KitchenConfig | None = None, physics: str = "mjx"):
+    def __init__(self, config: KitchenConfig | None = None, physics: str | None = None):
         config = config if config is not None else KitchenConfig()
         if isinstance(config, KitchenConfig):
             if config.integrator not in INTEGRATORS:
@@ -206,6 +206,11 @@ class KitchenEnv(Env):
         """Sub-task name per goal id."""
         return tasks.ALL_TASK_NAMES[: self._num_tasks]
 
+    @classmethod
+    def goal_names_of(cls, config: KitchenConfig) -> tuple[str, ...]:
+        """The sub-task names (``task_names``): TALAR's six, and ``'hinge cabinet'`` with ``hinge_cabinet_task``."""
+        return tasks.ALL_TASK_NAMES[: len(tasks.ALL_TASK_NAMES) if config.hinge_cabinet_task else tasks.NUM_TASKS]
+
     @property
     def state_observation_size(self) -> int:
         return tasks.OBSERVATION_SIZE
@@ -243,8 +248,11 @@ class KitchenEnv(Env):
         return self.clean_observation(qpos) + self.config.noise_ratio * tasks.NOISE_AMPLITUDE * noise
 
     # --- functional API -------------------------------------------------------------------------
-    def reset(self, rng: jax.Array, goal: jax.Array | int | None = None) -> State:
-        """The fixed initial state and a sub-task: uniform over the unsatisfied ones, or ``goal`` when given."""
+    def reset(self, rng: jax.Array, goal: jax.Array | int | str | None = None) -> State:
+        """The fixed initial state and a sub-task: uniform over the unsatisfied ones, or ``goal`` (an id or a
+        sub-task name; see ``Env.reset``) when given. ``kitchen-all`` pursues every sub-task and ignores ``goal``
+        once checked."""
+        goal = self.check_goal(goal)
         rng_goal, rng_obs, noise_rng = jax.random.split(_raw_key(rng), 3)
         data = self.physics.init(self._init_qpos)
         obs = self._observe(data.qpos, rng_obs)

@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from envs.goals import resolve_goal
+
 # Order of the paper's listing (Appendix D.1.1) and of the instruction data.
 TASK_NAMES: tuple[str, ...] = ("microwave", "kettle", "light switch", "slide cabinet", "top burner", "bottom burner")
 NUM_TASKS = len(TASK_NAMES)
@@ -136,10 +138,9 @@ NOISE_AMPLITUDE = np.array(
 
 
 def task_id(name: str) -> int:
-    """The goal id of a sub-task name (``ALL_TASK_NAMES``), with one clear error listing the valid names."""
-    if name not in ALL_TASK_NAMES:
-        raise ValueError(f"unknown kitchen task {name!r}; valid tasks: {', '.join(ALL_TASK_NAMES)}")
-    return ALL_TASK_NAMES.index(name)
+    """The goal id of a sub-task name (``ALL_TASK_NAMES``; matched as ``envs.goals.resolve_goal`` matches names, the
+    resolver every goal a person types goes through), with one clear error listing the valid names."""
+    return resolve_goal(name, ALL_TASK_NAMES, where="the kitchen")
 
 
 def task_distances(obs: jax.Array, num_tasks: int = NUM_TASKS) -> jax.Array:
