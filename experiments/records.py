@@ -24,7 +24,7 @@ codes). Refuses to write into a folder that holds a run.
 runs write (env, method, seeds, IFP env steps per seed, number of patterns, commit), so a reader or a script can tell
 a number's budget without guessing from a folder name. Sources, in order: the summary's own fields; the folder's
 ``provenance.json``; its ``config.json`` (configured IFP budget, patterns); ``ifp_metrics.jsonl`` (env steps actually
-run); the commits results/README.md names for runs recorded before provenance was written (``KNOWN_COMMITS``);
+run); the commits results/history.md names for runs recorded before provenance was written (``KNOWN_COMMITS``);
 otherwise the commit is null, with a note. ``--check`` exits non-zero if any summary lacks the fields (the test suite
 runs it).
 """
@@ -45,14 +45,14 @@ RESULTS = Path(__file__).resolve().parent.parent / "results"
 """The checkout's results/ folder (``annotate``'s default)."""
 MARKER = "RESTORED_FROM_RECORD"
 FIELDS = ("env", "method", "seeds", "ifp_env_steps_per_seed", "num_patterns", "commit")
-KNOWN_COMMITS = {  # commits results/README.md gives for runs recorded before summary.json carried them
+KNOWN_COMMITS = {  # commits results/history.md gives for runs recorded before summary.json carried them
     "clevr-talar-5seeds-2M-final": "320a93b",
     "kitchen-talar-5seeds-600k-final": "320a93b",
     "kitchen-talar-5seeds-1200k": "1fd39c6",
     "clevr-talar-alltokens-5seeds-2M": "8b0276a",
     "kitchen-talar-5seeds-scripted-posture-partial": "eceee9d",
 }
-CONFIGURED_STEPS = {  # the IFP budget of folders without config.json (from the command in results/README.md)
+CONFIGURED_STEPS = {  # the IFP budget of folders without config.json (from the command in results/history.md)
     "clevr-compare-5seeds-400k": 400_000,
     "clevr-compare-t4-5seeds-246k": 245_760,
 }
@@ -150,7 +150,7 @@ def annotation(path: Path, summary: dict) -> dict:
         "commit": commit,
     }
     if commit is None:
-        block["commit_note"] = "not recorded at the time (before runs wrote their commit); see results/README.md"
+        block["commit_note"] = "not recorded at the time (before runs wrote their commit); see results/history.md"
     return block
 
 

@@ -2,7 +2,7 @@
 
 The same code runs on one CPU, one GPU or many devices: arrays whose leading (seed) axis divides evenly by the
 device count are split along it, everything else is replicated; ``jax.jit`` then partitions the vmapped
-computation accordingly. Multi-host runs call ``jax.distributed.initialize()`` first (see README).
+computation accordingly. Multi-host runs call ``jax.distributed.initialize()`` first (see docs/recipe.md).
 """
 
 from __future__ import annotations

@@ -60,8 +60,7 @@ TARGET_POSTURE = np.array([_TARGET_POSTURES[name] for name in TASK_NAMES], np.fl
 # The robot posture at the moment of success along the scripted controller's noise-free episode from the reset
 # state (envs/kitchen/scripted.py; tests/test_kitchen.py re-derives it): the hand at the object. Several of TALAR's
 # postures leave the hand away from what it must move (top burner 0.26 m from knob 4, microwave and light switch
-# past their handles), and sitting still there costs about as much reward as succeeding; see README, "kitchen
-# reward".
+# past their handles), and sitting still there costs about as much reward as succeeding; see docs/kitchen-reward.md.
 _SCRIPTED_POSTURES: dict[str, tuple[float, ...]] = {
     "microwave": (-1.1685, -1.4415, 1.9235, -1.2895, 1.3067, 0.1892, 2.8677, 0.0398, 0.0406),
     "kettle": (-2.0733, -1.0283, 2.5803, -2.0383, -1.7871, 2.0739, 2.5727, 0.0361, 0.0393),
