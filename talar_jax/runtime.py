@@ -26,7 +26,10 @@ import os
 import platform
 import sys
 
-CPU_XLA_FLAG = "--xla_cpu_use_fusion_emitters=false"
+from envs.runtime import CPU_XLA_FLAG, set_cpu_xla_flag
+
+__all__ = ["CPU_XLA_FLAG", "compile_cache_dir", "configure", "host_cpu_fingerprint", "start"]
+
 # Its own variable: $TALAR_JAX_CACHE names the language cache folder itself (talar_jax.language.cache).
 COMPILE_CACHE_ENV_VAR = "TALAR_JAX_COMPILE_CACHE"
 COMPILE_CACHE_DIR = "~/.cache/talar-jax/jax"
@@ -87,8 +90,7 @@ def configure(compile_cache: bool = True) -> None:
     """
     _quiet_xla_log()
     _select_mujoco_gl()
-    if CPU_XLA_FLAG not in os.environ.get("XLA_FLAGS", ""):
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + CPU_XLA_FLAG).strip()
+    set_cpu_xla_flag()  # the envs' own rule: only while JAX has not started, never over a user's own value
     if compile_cache:
         import jax
 
