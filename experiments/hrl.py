@@ -26,12 +26,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tyro
 
 import envs
-from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
 from experiments.config import default_config
 from experiments.pipeline import run
+from experiments.recipes import HRLRecipe, get_recipe, recipe_names
 from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.hrl import (
@@ -43,29 +43,12 @@ from talar_jax.hrl import (
     task_language_code,
 )
 from talar_jax.ppo import PPOConfig, run_ppo
+from talar_jax.report import counted
 from talar_jax.stages import run_stage, stable_hash, to_jsonable
 from talar_jax.task_language import TaskLanguageSpec
 
 HRL_METHODS: tuple[str, ...] = ("talar", "hal", "flat")
 METHOD_LABELS = {"talar": "TALAR (TL actions)", "hal": "HAL (NL instruction index)", "flat": "flat PPO"}
-
-
-@dataclasses.dataclass(frozen=True)
-class HRLEnvDefaults:
-    """Per env: the long-horizon env, its options, the high-level episode length and the budget."""
-
-    low_env: str
-    low_env_options: dict[str, Any]
-    episode_length: int
-    """High-level steps per episode (x ``hold`` low-level steps)."""
-    env_steps: int
-    """Low-level env steps per seed and method."""
-
-
-HRL_ENVS: dict[str, HRLEnvDefaults] = {
-    "clevr": HRLEnvDefaults("clevr-arrangement", {}, episode_length=10, env_steps=1_000_000),
-    "kitchen": HRLEnvDefaults("kitchen-all", {"all_tasks_reward": "count"}, episode_length=28, env_steps=1_000_000),
-}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,10 +86,21 @@ class HRLArgs:
     """Progress bars."""
 
 
+def hrl_envs() -> tuple[str, ...]:
+    """The envs whose recipe has a hierarchical RL set-up."""
+    return tuple(name for name in recipe_names() if get_recipe(name).hrl is not None)
+
+
+def hrl_recipe(env: str) -> HRLRecipe:
+    """The hierarchical RL set-up of ``env``, or one clear error naming the envs that have one."""
+    if env not in hrl_envs():
+        raise ValueError(f"unknown env {env!r}; choose one of {', '.join(hrl_envs())}")
+    return get_recipe(env).hrl
+
+
 def resolve(args: HRLArgs) -> HRLArgs:
     """Validates (one ValueError per bad input) and fills the defaults."""
-    if args.env not in HRL_ENVS:
-        raise ValueError(f"unknown env {args.env!r}; choose one of {', '.join(HRL_ENVS)}")
+    defaults = hrl_recipe(args.env)
     unknown = [m for m in args.methods if m not in HRL_METHODS]
     if unknown or not args.methods:
         raise ValueError(f"unknown method(s) {unknown}; valid methods: {', '.join(HRL_METHODS)}")
@@ -121,7 +115,6 @@ def resolve(args: HRLArgs) -> HRLArgs:
     physics = args.physics or envs.default_backend()
     if physics not in envs.PHYSICS_BACKENDS:
         raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(envs.PHYSICS_BACKENDS)}")
-    defaults = HRL_ENVS[args.env]
     out = args.out or Path(f"runs/hrl-{args.env}{'-quick' if args.quick else ''}")
     run_dir = args.run_dir or (out / "low-level" if args.quick else Path(f"runs/{args.env}"))
     episode_length = args.episode_length or (3 if args.quick else defaults.episode_length)
@@ -167,10 +160,8 @@ def build(args: HRLArgs, method: str, run_folder: Path):
     """(env, PPO config, steps per PPO env step) of one method."""
     from experiments.reports import load_agent
 
-    defaults = HRL_ENVS[args.env]
-    options = dict(defaults.low_env_options)
-    if args.env == "clevr":
-        options["arrangement_reward"] = args.arrangement_reward
+    defaults = hrl_recipe(args.env)
+    options = {**defaults.low_env_options, **{name: getattr(args, name) for name in defaults.args_options}}
     if method == "flat":
         low_env = SingleTaskWrapper(
             envs.make(defaults.low_env, physics=args.physics, episode_length=args.episode_length * args.hold, **options)
@@ -252,21 +243,22 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
     run_folder = low_level_run(args)
     ifp_key = json.loads((run_folder / "ifp" / "stage.json").read_text())["key"]
     curves = {method: train_method(args, method, run_folder, ifp_key) for method in args.methods}
+    recipe = hrl_recipe(args.env)
     summary: dict[str, Any] = {
         "env": args.env,
-        "low_env": HRL_ENVS[args.env].low_env,
+        "low_env": recipe.low_env,
         "low_level_run": str(args.run_dir),
         "ifp_seed": args.ifp_seed,
         "hold": args.hold,
         "episode_length_high_level_steps": args.episode_length,
         "low_level_env_steps_per_seed": args.env_steps,
         "seeds": args.seeds,
-        "arrangement_reward": args.arrangement_reward if args.env == "clevr" else None,
+        "arrangement_reward": args.arrangement_reward if "arrangement_reward" in recipe.args_options else None,
         "command": "python -m experiments.hrl " + " ".join(sys.argv[1:]),
         "methods": {},
     }
     lines = [
-        f"# Hierarchical RL on {args.env} ({HRL_ENVS[args.env].low_env}), {args.seeds} seeds, "
+        f"# Hierarchical RL on {args.env} ({recipe.low_env}), {counted(args.seeds, 'seed')}, "
         f"{args.env_steps:,d} low-level env steps per seed{' (QUICK budget)' if args.quick else ''}",
         "",
         "| method | area under the curve (mean reward per episode over training) | final reward per episode |",
@@ -286,17 +278,26 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
     table = "\n".join(lines) + "\n"
     (args.out / "results.md").write_text(table)
     write_json_atomic(args.out / "summary.json", summary)
-    plot(curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {args.seeds} seeds)")
+    plot(
+        curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {counted(args.seeds, 'seed')})"
+    )
     print(table)
     print(f"outputs in {args.out}: hrl.png, results.md, summary.json")
     return summary
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """``python -m experiments.hrl``: a bad option or output folder, or a folder another command holds, prints one
+    ``error:`` line and exits with status 2."""
     runtime.start()
-    args = tyro.cli(HRLArgs, args=argv, config=CLI_CONFIG, description=__doc__.splitlines()[0])
-    valid_or_exit(resolve, args)
-    return hrl(args)
+    args = parse_or_exit(HRLArgs, argv, description=__doc__)
+    resolved = valid_or_exit(resolve, args)
+    low_level_finished = (resolved.run_dir / "talar" / "ifp" / "stage.json").is_file()
+    check_outputs_or_exit(
+        (resolved.out, "--out", "folder"), (None if low_level_finished else resolved.run_dir, "--run-dir", "folder")
+    )
+    with hold_or_exit(resolved.out):
+        return hrl(args)
 
 
 if __name__ == "__main__":

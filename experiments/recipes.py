@@ -1,9 +1,10 @@
 """One registered recipe per env: everything the experiments need to know of an env, in one place.
 
-A recipe names the env (``envs.make``), its goals, its scripted task-dataset collector, the oracle's budgets and
-the experiment defaults of the referential game, translator and IFP. The pipeline, the oracle and the
-comparison commands read recipes only; adding a third env means an env package (``envs/``, registering the env and,
-with ``envs.register_instruction_format``, how its instruction file is read) and, here, one ``register_recipe`` call.
+A recipe names the env (``envs.make``), its goals, its scripted task-dataset collector, the oracle's budgets,
+the experiment defaults of the referential game, translator and IFP, and its hierarchical RL set-up (if any). The
+pipeline, the oracle, the comparison commands and ``experiments.hrl`` read recipes only; adding a third env means an
+env package (``envs/``, registering the env and, with ``envs.register_instruction_format``, how its instruction file
+is read) and, here, one ``register_recipe`` call.
 """
 
 from __future__ import annotations
@@ -23,6 +24,26 @@ EXPERIMENT_TALAR = TalarConfig(rg_learning_rate=3e-3, gumbel_temperature=4.0, rg
 # The IFP's PPO in the experiment commands: Table 2 (PPOConfig's defaults) with the original's evaluation
 # (stochastic episodes; a deterministic discrete policy can repeat a blocked push until the time limit).
 EXPERIMENT_IFP = PPOConfig(eval_every_chunks=2, eval_episodes=80, eval_deterministic=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class HRLRecipe:
+    """An env's hierarchical RL set-up (``experiments.hrl``, paper Fig. 6).
+
+    Attributes:
+        low_env: the ``envs.make`` name of the long-horizon env the low-level policy acts in.
+        episode_length: high-level steps per episode (each held for ``--hold`` low-level steps).
+        env_steps: low-level env steps per seed and method.
+        low_env_options: ``envs.make`` options of ``low_env``.
+        args_options: ``HRLArgs`` fields passed to ``low_env`` as the ``envs.make`` option of the same name (CLEVR's
+            ``arrangement_reward``); the summary records them.
+    """
+
+    low_env: str
+    episode_length: int
+    env_steps: int
+    low_env_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    args_options: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,6 +68,7 @@ class EnvRecipe:
             goals stay in summary.json).
         paper_margin: TALAR's lead over the best baseline in the paper's Fig. 4, points of success (None: not in
             the paper).
+        hrl: the hierarchical RL set-up of ``experiments.hrl`` (None: the env has none).
     """
 
     env: str
@@ -62,6 +84,7 @@ class EnvRecipe:
     train_patterns: int | None = None
     per_goal_report: bool = False
     paper_margin: float | None = None
+    hrl: HRLRecipe | None = None
 
     @property
     def default_collector(self) -> str:
@@ -148,6 +171,9 @@ register_recipe(
         showcase_goals=_clevr_showcase_goals,
         train_patterns=9,
         paper_margin=13.4,
+        hrl=HRLRecipe(
+            "clevr-arrangement", episode_length=10, env_steps=1_000_000, args_options=("arrangement_reward",)
+        ),
     )
 )
 
@@ -188,7 +214,7 @@ KITCHEN_TALAR = dataclasses.replace(
     translator_tokens=True,
 )
 # The posture term's targets: the scripted controller's postures at success instead of TALAR's hard-coded ones
-# (README, "Kitchen reward"; the measurements are in the KitchenConfig docstring and results/).
+# (docs/kitchen-reward.md; the measurements are in the KitchenConfig docstring and results/).
 KITCHEN_ENV_OPTIONS = {"posture_targets": "scripted"}
 
 register_recipe(
@@ -204,5 +230,8 @@ register_recipe(
         env_options=KITCHEN_ENV_OPTIONS,
         per_goal_report=True,
         paper_margin=63.2,
+        hrl=HRLRecipe(
+            "kitchen-all", episode_length=28, env_steps=1_000_000, low_env_options={"all_tasks_reward": "count"}
+        ),
     )
 )
