@@ -26,9 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tyro
 
 import envs
-from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import CLI_CONFIG, valid_or_exit
 from experiments.config import default_config
 from experiments.pipeline import run
 from experiments.recipes import HRLRecipe, get_recipe, recipe_names
@@ -43,7 +44,6 @@ from talar_jax.hrl import (
     task_language_code,
 )
 from talar_jax.ppo import PPOConfig, run_ppo
-from talar_jax.report import counted
 from talar_jax.stages import run_stage, stable_hash, to_jsonable
 from talar_jax.task_language import TaskLanguageSpec
 
@@ -258,7 +258,7 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
         "methods": {},
     }
     lines = [
-        f"# Hierarchical RL on {args.env} ({recipe.low_env}), {counted(args.seeds, 'seed')}, "
+        f"# Hierarchical RL on {args.env} ({recipe.low_env}), {args.seeds} seeds, "
         f"{args.env_steps:,d} low-level env steps per seed{' (QUICK budget)' if args.quick else ''}",
         "",
         "| method | area under the curve (mean reward per episode over training) | final reward per episode |",
@@ -278,26 +278,17 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
     table = "\n".join(lines) + "\n"
     (args.out / "results.md").write_text(table)
     write_json_atomic(args.out / "summary.json", summary)
-    plot(
-        curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {counted(args.seeds, 'seed')})"
-    )
+    plot(curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {args.seeds} seeds)")
     print(table)
     print(f"outputs in {args.out}: hrl.png, results.md, summary.json")
     return summary
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """``python -m experiments.hrl``: a bad option or output folder, or a folder another command holds, prints one
-    ``error:`` line and exits with status 2."""
     runtime.start()
-    args = parse_or_exit(HRLArgs, argv, description=__doc__)
-    resolved = valid_or_exit(resolve, args)
-    low_level_finished = (resolved.run_dir / "talar" / "ifp" / "stage.json").is_file()
-    check_outputs_or_exit(
-        (resolved.out, "--out", "folder"), (None if low_level_finished else resolved.run_dir, "--run-dir", "folder")
-    )
-    with hold_or_exit(resolved.out):
-        return hrl(args)
+    args = tyro.cli(HRLArgs, args=argv, config=CLI_CONFIG, description=__doc__.splitlines()[0])
+    valid_or_exit(resolve, args)
+    return hrl(args)
 
 
 if __name__ == "__main__":
