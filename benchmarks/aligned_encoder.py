@@ -14,11 +14,11 @@ writes ``benchmarks/results/aligned_encoder.json``.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import envs
 from benchmarks.finetuned_bert import lookups, measured_update, recipe_steps, report, time_conditioners
+from experiments.cli import ArgumentParser
 from experiments.config import default_config
 from talar_jax import runtime
 from talar_jax.baselines import EncodingLayerConditioner
@@ -35,10 +35,14 @@ class PerRowAlignedConditioner(EncodingLayerConditioner):
 
 def main(argv: list[str] | None = None) -> list[dict]:
     runtime.configure()  # the compile cache on, as when the recorded results were measured
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
-    parser.add_argument("--num-envs", type=int, default=16)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser = ArgumentParser(prog="python -m benchmarks.aligned_encoder", description=__doc__)
+    parser.add_argument(
+        "--env", default="kitchen", choices=["clevr", "kitchen"], help="env of the timed update (default: kitchen)"
+    )
+    parser.add_argument("--num-envs", type=int, default=16, help="envs of the timed PPO update (default: 16)")
+    parser.add_argument(
+        "--repeats", type=int, default=5, help="timed updates per conditioner; the median counts (default: 5)"
+    )
     parser.add_argument(
         "--extra-epochs", type=int, default=8, help="epochs added to the timed update to measure a minibatch step"
     )

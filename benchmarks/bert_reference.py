@@ -115,7 +115,8 @@ def main(argv: list[str] | None = None) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--model", required=True, type=Path, help="folder of all-MiniLM-L6-v2 (or another BERT)")
-    parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "tests" / "data")
+    data = Path(__file__).resolve().parents[1] / "tests" / "data"
+    parser.add_argument("--out", type=Path, default=data, help="folder of the reference files (default: tests/data)")
     parser.add_argument("--dims", type=int, default=32, help="hidden-state dims kept (pooled vectors are full)")
     args = parser.parse_args(argv)
     try:

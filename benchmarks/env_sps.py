@@ -8,7 +8,6 @@ separately reported compile (jit of reset + the scanned chunk); steady state = r
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -22,6 +21,7 @@ import numpy as np
 
 import envs
 from benchmarks.original_style import original_steps_per_second
+from experiments.cli import ArgumentParser
 from talar_jax import runtime
 
 RESULTS_DIR = Path(__file__).parent / "results"
@@ -143,8 +143,8 @@ def print_table(results: dict) -> None:
 
 def main() -> None:
     runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="clevr", choices=sorted(BENCH_CONFIGS))
+    parser = ArgumentParser(prog="python -m benchmarks.env_sps", description=__doc__)
+    parser.add_argument("--env", default="clevr", choices=sorted(BENCH_CONFIGS), help="env to time (default: clevr)")
     parser.add_argument("--quick", action="store_true", help="short timing windows, first two batch sizes only")
     args = parser.parse_args()
     results = run(args.env, args.quick)

@@ -14,7 +14,6 @@ on this machine, one process, no evaluations. Prints a table and writes ``benchm
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -25,6 +24,7 @@ import numpy as np
 
 import envs
 from benchmarks.machine import machine_info
+from experiments.cli import ArgumentParser
 from experiments.config import default_config
 from talar_jax import runtime
 from talar_jax.baselines import EncodingLayerConditioner, FinetunedBertConditioner
@@ -127,11 +127,21 @@ def report(rows: list[dict], ratio: str, columns: list[tuple[str, str, str]], pa
 
 def main(argv: list[str] | None = None) -> list[dict]:
     runtime.configure()  # the compile cache on, as when the recorded results were measured
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="kitchen", choices=["clevr", "kitchen"])
-    parser.add_argument("--first-layers", type=int, nargs="+", default=[5, 0])
-    parser.add_argument("--num-envs", type=int, default=16)
-    parser.add_argument("--repeats", type=int, default=2)
+    parser = ArgumentParser(prog="python -m benchmarks.finetuned_bert", description=__doc__)
+    parser.add_argument(
+        "--env", default="kitchen", choices=["clevr", "kitchen"], help="env of the timed update (default: kitchen)"
+    )
+    parser.add_argument(
+        "--first-layers",
+        type=int,
+        nargs="+",
+        default=[5, 0],
+        help="fine-tuned variants to time: BERT trained from encoder layer K up, 0 for all of it (default: 5 0)",
+    )
+    parser.add_argument("--num-envs", type=int, default=16, help="envs of the timed PPO update (default: 16)")
+    parser.add_argument(
+        "--repeats", type=int, default=2, help="timed updates per conditioner; the median counts (default: 2)"
+    )
     args = parser.parse_args(argv)
 
     experiment = default_config(args.env)

@@ -11,7 +11,6 @@ the doors-static model. Writes ``benchmarks/results/kitchen_model_cost.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.env_sps import BENCH_CONFIGS, RESULTS_DIR, time_backend
+from experiments.cli import ArgumentParser
 from talar_jax import runtime
 
 BEFORE_COMMIT = "3ffadf1"
@@ -50,9 +50,11 @@ def _time_before(worktree: Path, physics: str, batch: int, seconds: float) -> fl
 
 def main() -> None:
     runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="python -m benchmarks.kitchen_model_cost", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="one round, short timing windows")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="timing rounds of the C rows; the median counts (default: 3)"
+    )
     args = parser.parse_args()
     rows = [("c", 64), ("mjx", 64)] if not args.quick else [("c", 64)]
     repeats, seconds = (1, 1.0) if args.quick else (args.repeats, 3.0)

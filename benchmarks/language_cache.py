@@ -15,8 +15,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import tyro
 
+from experiments.cli import parse_or_exit
 from talar_jax import runtime
 from talar_jax.language import build_cache, load_encoder
 from talar_jax.language.cache import cache_path
@@ -147,4 +147,4 @@ def _distinct_prefixes(cache) -> int:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(parse_or_exit(Args, None, description=__doc__))

@@ -13,7 +13,6 @@ the project's goal is 1.15. Prints a table and writes ``benchmarks/results/pipel
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import tempfile
@@ -24,6 +23,7 @@ import numpy as np
 
 from benchmarks.env_sps import BenchConfig, time_backend
 from benchmarks.machine import machine_info
+from experiments.cli import ArgumentParser
 from experiments.config import default_config
 from experiments.pipeline import run
 from talar_jax import runtime
@@ -119,9 +119,11 @@ def markdown(rows: list[dict]) -> str:
 
 def main() -> None:
     runtime.configure()  # with the compile cache: the stages' compile time is measured apart
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"])
-    parser.add_argument("--seeds", type=int, default=5)
+    parser = ArgumentParser(prog="python -m benchmarks.pipeline", description=__doc__)
+    parser.add_argument(
+        "--envs", nargs="+", default=["clevr", "kitchen"], help="envs whose pipeline to time (default: clevr kitchen)"
+    )
+    parser.add_argument("--seeds", type=int, default=5, help="seeds of each run, vmapped (default: 5)")
     parser.add_argument("--ifp-chunks", type=int, default=4, help="IFP chunks timed (the rest is extrapolated)")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default: a fresh temporary one)")
     args = parser.parse_args()

@@ -9,7 +9,6 @@ joint-limit violation (qpos outside a limited hinge/slide joint's range) and the
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -21,6 +20,7 @@ import mujoco
 import numpy as np
 
 import envs
+from experiments.cli import ArgumentParser
 from talar_jax import runtime
 
 BLOWUP = 0.1
@@ -115,21 +115,32 @@ def table(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     runtime.configure(compile_cache=False)
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.soak", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--steps", type=int, default=1_000_000)
-    parser.add_argument("--batch", type=int, default=1000)
+    parser = ArgumentParser(prog="python -m benchmarks.soak", description=__doc__)
+    parser.add_argument("--steps", type=int, default=1_000_000, help="env steps per env and backend (default: 1000000)")
+    parser.add_argument("--batch", type=int, default=1000, help="envs stepped together (default: 1000)")
     parser.add_argument(
         "--mjx-kitchen-steps",
         type=int,
         default=None,
         help="env steps of the kitchen envs on MJX (default --steps; on a CPU, MJX runs the arm at ~300 steps/s)",
     )
-    parser.add_argument("--envs", nargs="+", default=list(envs.ALL_ENVS), choices=envs.ALL_ENVS)
-    parser.add_argument("--physics", nargs="+", default=list(envs.PHYSICS_BACKENDS), choices=envs.PHYSICS_BACKENDS)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=Path("results/envs-library/soak"))
+    parser.add_argument(
+        "--envs", nargs="+", default=list(envs.ALL_ENVS), choices=envs.ALL_ENVS, help="envs to soak (default: all)"
+    )
+    parser.add_argument(
+        "--physics",
+        nargs="+",
+        default=list(envs.PHYSICS_BACKENDS),
+        choices=envs.PHYSICS_BACKENDS,
+        help="physics backends to soak (default: all)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the resets and random actions (default: 0)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/envs-library/soak"),
+        help="folder of the report (default: results/envs-library/soak)",
+    )
     args = parser.parse_args(argv)
     if args.steps < 1 or args.batch < 1 or (args.mjx_kitchen_steps is not None and args.mjx_kitchen_steps < 1):
         parser.error("--steps and --batch must be >= 1")

@@ -23,6 +23,7 @@ import jax
 import numpy as np
 
 from benchmarks.machine import machine_info
+from experiments.cli import ArgumentParser
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.dataset import TaskDataset
@@ -51,12 +52,16 @@ def time_fit(fit, data, extra: tuple, seeds: int, steps: int) -> float:
 
 
 def parse_args() -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="kitchen")
+    parser = ArgumentParser(prog="python -m benchmarks.supervised_layouts", description=__doc__)
+    parser.add_argument("--env", default="kitchen", help="env whose recipe is timed (default: kitchen)")
     parser.add_argument("--dataset", type=Path, required=True, help="an oracle stage's dataset/ folder")
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--sentence-readout", default="sentence+prefixes")
+    parser.add_argument("--seeds", type=int, default=5, help="seeds vmapped in each timed step (default: 5)")
+    parser.add_argument("--steps", type=int, default=200, help="timed steps per fit, compile apart (default: 200)")
+    parser.add_argument(
+        "--sentence-readout",
+        default="sentence+prefixes",
+        help="what the fits read of an instruction (default: sentence+prefixes)",
+    )
     parser.add_argument(
         "--prefix-dims", type=int, nargs="*", default=[32], help="also time the game with receiver_prefix_dims = each"
     )

@@ -23,6 +23,7 @@ import numpy as np
 
 import envs
 from benchmarks.machine import machine_info
+from experiments.cli import ArgumentParser
 from talar_jax import runtime
 from talar_jax.conditioning import GoalOneHotConditioner
 from talar_jax.ppo import PPOConfig, derive, make_train
@@ -130,13 +131,15 @@ def sb3_reference_sps(env_name: str, total_steps: int) -> dict:
 
 def main() -> None:
     runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"])
-    parser.add_argument("--physics", nargs="+", default=["c", "mjx"])
-    parser.add_argument("--num-envs", type=int, default=64)
-    parser.add_argument("--updates-per-chunk", type=int, default=2)
-    parser.add_argument("--chunks", type=int, default=2)
-    parser.add_argument("--sb3-steps", type=int, default=2048)
+    parser = ArgumentParser(prog="python -m benchmarks.train_sps", description=__doc__)
+    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"], help="envs to time (default: clevr kitchen)")
+    parser.add_argument("--physics", nargs="+", default=["c", "mjx"], help="physics backends to time (default: c mjx)")
+    parser.add_argument("--num-envs", type=int, default=64, help="envs of the talar-jax PPO (default: 64)")
+    parser.add_argument("--updates-per-chunk", type=int, default=2, help="PPO updates per jitted chunk (default: 2)")
+    parser.add_argument("--chunks", type=int, default=2, help="chunks timed after compilation (default: 2)")
+    parser.add_argument(
+        "--sb3-steps", type=int, default=2048, help="env steps of the stable-baselines3 reference (default: 2048)"
+    )
     parser.add_argument("--no-sb3", action="store_true", help="skip the reference (no benchmark extra installed)")
     args = parser.parse_args()
     rows = []

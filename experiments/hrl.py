@@ -26,10 +26,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tyro
 
 import envs
-from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
 from experiments.config import default_config
 from experiments.pipeline import run
 from experiments.recipes import HRLRecipe, get_recipe, recipe_names
@@ -44,6 +43,7 @@ from talar_jax.hrl import (
     task_language_code,
 )
 from talar_jax.ppo import PPOConfig, run_ppo
+from talar_jax.report import counted
 from talar_jax.stages import run_stage, stable_hash, to_jsonable
 from talar_jax.task_language import TaskLanguageSpec
 
@@ -257,8 +257,9 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
         "command": "python -m experiments.hrl " + " ".join(sys.argv[1:]),
         "methods": {},
     }
+    seeds = counted(args.seeds, "seed")
     lines = [
-        f"# Hierarchical RL on {args.env} ({recipe.low_env}), {args.seeds} seeds, "
+        f"# Hierarchical RL on {args.env} ({recipe.low_env}), {seeds}, "
         f"{args.env_steps:,d} low-level env steps per seed{' (QUICK budget)' if args.quick else ''}",
         "",
         "| method | area under the curve (mean reward per episode over training) | final reward per episode |",
@@ -278,7 +279,7 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
     table = "\n".join(lines) + "\n"
     (args.out / "results.md").write_text(table)
     write_json_atomic(args.out / "summary.json", summary)
-    plot(curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {args.seeds} seeds)")
+    plot(curves, args.out / "hrl.png", f"{args.env}: reward per episode (mean ± std over {seeds})")
     print(table)
     print(f"outputs in {args.out}: hrl.png, results.md, summary.json")
     return summary
@@ -286,9 +287,12 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     runtime.start()
-    args = tyro.cli(HRLArgs, args=argv, config=CLI_CONFIG, description=__doc__.splitlines()[0])
-    valid_or_exit(resolve, args)
-    return hrl(args)
+    args = parse_or_exit(HRLArgs, argv, description=__doc__)
+    resolved = valid_or_exit(resolve, args)
+    low_level = None if (resolved.run_dir / "talar" / "ifp" / "stage.json").is_file() else resolved.run_dir
+    check_outputs_or_exit((resolved.out, "--out", "folder"), (low_level, "--run-dir", "folder"))
+    with hold_or_exit(resolved.out):  # bad input and a folder another command holds: one error line, status 2
+        return hrl(args)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ import jax
 import numpy as np
 import tyro
 
+from experiments.cli import output_path_problem, parse_or_exit
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
@@ -84,6 +85,8 @@ def check_args(args: InstructArgs) -> None:
         raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
     if args.video is not None and args.video.suffix not in (".gif", ".mp4"):
         raise AgentError(f"--video must end in .gif or .mp4, got {args.video}")
+    if args.video is not None and output_path_problem(args.video, "file"):
+        raise AgentError(f"--video: {output_path_problem(args.video, 'file')}")
 
 
 def instruct(args: InstructArgs) -> dict:
@@ -143,7 +146,7 @@ def instruct(args: InstructArgs) -> dict:
 
 def agent_command(cls, function, argv: list[str] | None, description: str | None):
     """Parses ``cls`` and calls ``function``; an ``AgentError`` prints one ``error:`` line and exits with status 2."""
-    args = tyro.cli(cls, args=argv, description=description)
+    args = parse_or_exit(cls, argv, description=description)
     try:
         return function(args)
     except AgentError as error:

@@ -25,10 +25,9 @@ from typing import Any
 
 import jax
 import numpy as np
-import tyro
 
 import envs
-from experiments.cli import valid_or_exit
+from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
 from experiments.config import QUICK_PPO_ENV_STEPS, quick_ppo
 from experiments.recipes import get_recipe
 from talar_jax import runtime
@@ -80,11 +79,19 @@ class OracleArgs:
     """Show progress bars."""
 
 
+def _given(args: OracleArgs, name: str) -> bool:
+    """Whether the option ``name`` was set to a value other than its default (which ``--quick`` then keeps)."""
+    return getattr(args, name) != OracleArgs.__dataclass_fields__[name].default
+
+
 def oracle_ppo_config(args: OracleArgs) -> PPOConfig:
-    """The PPO config of an oracle run (defaults from Table 2; budget from the env recipe)."""
+    """The PPO config of an oracle run (defaults from Table 2; budget from the env recipe). ``--quick`` sets the quick
+    budget but keeps an option given explicitly (a value other than its default)."""
     total = args.total_env_steps or get_recipe(args.env).oracle_env_steps
     if args.quick:
-        return quick_ppo(PPOConfig(seed=args.seed), args.total_env_steps or QUICK_PPO_ENV_STEPS)
+        config = quick_ppo(PPOConfig(seed=args.seed), args.total_env_steps or QUICK_PPO_ENV_STEPS)
+        names = ("num_envs", "rollout_length", "eval_every_chunks", "eval_episodes")
+        return dataclasses.replace(config, **{name: getattr(args, name) for name in names if _given(args, name)})
     return PPOConfig(
         num_envs=args.num_envs,
         rollout_length=args.rollout_length,
@@ -177,7 +184,7 @@ def _collect(
         num_tuples,
         jax.random.PRNGKey(args.seed + 7),
         sampler,
-        num_envs=16 if args.quick else args.collect_envs,
+        num_envs=16 if args.quick and not _given(args, "collect_envs") else args.collect_envs,
         progress=args.progress,
         successful_only=not args.quick,
         config={
@@ -233,11 +240,14 @@ def run(args: OracleArgs) -> float:
 
 
 def main(argv: list[str] | None = None) -> float:
-    """``python -m experiments.oracle``: a bad option prints one ``error:`` line and exits with status 2."""
+    """``python -m experiments.oracle``: a bad option or output folder, or a folder another command holds, prints
+    one ``error:`` line and exits with status 2."""
     runtime.start()
-    args = tyro.cli(OracleArgs, args=argv, description=__doc__)
-    valid_or_exit(lambda: (get_recipe(args.env), collector_of(args)))
-    return run(args)
+    args = parse_or_exit(OracleArgs, argv, description=__doc__)
+    valid_or_exit(lambda: (get_recipe(args.env), collector_of(args), oracle_ppo_config(args)))
+    check_outputs_or_exit((args.out, "--out", "folder"))
+    with hold_or_exit(args.out):
+        return run(args)
 
 
 if __name__ == "__main__":

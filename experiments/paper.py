@@ -18,9 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import tyro
-
-from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
 from talar_jax import runtime
 
 
@@ -120,8 +118,17 @@ def selected(args: PaperArgs) -> list[Job]:
 
 def main(argv: list[str] | None = None) -> int:
     runtime.start()
-    args = tyro.cli(PaperArgs, args=argv, config=CLI_CONFIG, description=__doc__)
+    args = parse_or_exit(PaperArgs, argv, description=__doc__)
     todo = valid_or_exit(selected, args)
+    if args.dry_run:
+        return run_jobs(args, todo)
+    check_outputs_or_exit((args.root, "--root", "folder"))
+    with hold_or_exit(args.root):  # one reproduction per root at a time (each command also holds its own folder)
+        return run_jobs(args, todo)
+
+
+def run_jobs(args: PaperArgs, todo: list[Job]) -> int:
+    """Runs (or with --dry-run prints) the jobs one after another; the status of the first that fails, else 0."""
     for index, job in enumerate(todo):
         command = [sys.executable, "-m", *job.command(existing_only=not args.dry_run)]
         line = shlex.join(["python", *command[1:]])

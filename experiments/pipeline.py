@@ -14,11 +14,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import tyro
-
 import envs
-from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
 from experiments.config import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, make_env, resolve, run_name
+from experiments.lock import hold
 from experiments.methods import MethodContext, MethodSetup, get_method
 from experiments.oracle import OracleArgs
 from experiments.oracle import run as run_oracle
@@ -131,8 +130,14 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
 
 
 def run(config: ExperimentConfig) -> dict[str, Any]:
-    """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary."""
+    """Runs (or resumes) every stage of ``config.method`` and writes its report; returns the summary. Holds
+    ``config.out``'s lock meanwhile (``experiments.lock``: ``FolderInUseError`` when another process holds it)."""
     config = check_inputs(config)
+    with hold(config.out):
+        return _run(config)
+
+
+def _run(config: ExperimentConfig) -> dict[str, Any]:
     method = get_method(config.method)
     folder = config.out / run_name(config)
     folder.mkdir(parents=True, exist_ok=True)
@@ -160,17 +165,35 @@ def run(config: ExperimentConfig) -> dict[str, Any]:
 
 
 def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
-    """``check_inputs(config)``, or one ``error: ...`` line on stderr and exit status 2."""
-    return valid_or_exit(check_inputs, config)
+    """``check_inputs(config)`` and its output folder (``--out``), or one ``error: ...`` line on stderr and exit
+    status 2."""
+    config = valid_or_exit(check_inputs, config)
+    check_outputs_or_exit((config.out, "--out", "folder"))
+    return config
+
+
+def description(env: str) -> str:
+    """The opening text of ``python -m experiments.<env> --help``."""
+    return (
+        f"The TALAR pipeline (or another --method's) on {env} for --seeds seeds: oracle and task dataset, language "
+        "cache, the method's stages (for TALAR: referential game, translator), instruction-following policy, "
+        "report. Each stage is cached in --out; a run started again resumes where it stopped.\n\n"
+        f"The defaults shown are the {env} recipe's (experiments/recipes.py), which differs from the paper's "
+        "Table 2 where the README says why. --quick is a small smoke run; an option given explicitly keeps its "
+        "value under --quick."
+    )
 
 
 def command(env: str):
     """``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``): ``default_config(env)``
-    on the command line; a bad option prints one line and exits with status 2 before any stage runs."""
+    on the command line; a bad option or output folder prints one line and exits with status 2 before any stage
+    runs, and so does a folder another command is running in."""
 
     def main(argv: list[str] | None = None) -> dict[str, Any]:
         runtime.start()
-        config = tyro.cli(ExperimentConfig, default=default_config(env), args=argv, config=CLI_CONFIG)
-        return run(checked_or_exit(config))
+        config = parse_or_exit(ExperimentConfig, argv, default=default_config(env), description=description(env))
+        config = checked_or_exit(config)
+        with hold_or_exit(config.out):
+            return run(config)
 
     return main

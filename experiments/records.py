@@ -39,6 +39,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from experiments.cli import ArgumentParser, check_outputs_or_exit, fail
 from talar_jax.report import RECORD_FILES
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
@@ -173,7 +174,9 @@ def annotate(results: Path = RESULTS, check: bool = False) -> list[str]:
 
 
 def parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(
+        prog="python -m experiments.records", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     commands = parser.add_subparsers(dest="subcommand", required=True)
     to_record = commands.add_parser("record", help="copy a finished method folder's outputs into results/<name>")
     to_record.add_argument("method_dir", type=Path, help="a finished method folder, e.g. runs/kitchen/talar")
@@ -193,18 +196,19 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = parser().parse_args(argv)
+    if args.subcommand in ("record", "restore"):
+        check_outputs_or_exit((args.dest, "DEST", "folder"))
     if args.subcommand == "record":
         try:
             provenance = record(args.method_dir, args.dest, args.command, args.note)
         except ValueError as error:
-            sys.exit(f"error: {error}")
+            fail(str(error))
         print(f"recorded {args.method_dir} -> {args.dest}: {json.dumps(provenance)}")
     elif args.subcommand == "restore":
         try:
             written = restore(args.record, args.dest)
         except ValueError as error:
-            print(f"error: {error}", file=sys.stderr)
-            raise SystemExit(2) from None
+            fail(str(error))
         print(f"restored {args.record} -> {args.dest}: {', '.join(written)}")
     else:
         lacking = annotate(args.results, args.check)

@@ -22,6 +22,7 @@ from talar_jax.provenance import provenance
 from talar_jax.report import (
     GoalCurves,
     LearningCurve,
+    counted,
     plot_deployment_strip,
     plot_learning_curves,
     plot_tsne,
@@ -76,7 +77,7 @@ def per_goal_table(per_goal: dict[str, list[float | None]], names: list[str]) ->
 
 def _results_markdown(config, stages, setup, curve, per_goal, names) -> str:
     """``results.md``: the final success table, the TL's quality, stage times and (where the recipe asks) per goal."""
-    title = f"{config.env} ({config.seeds} seeds)"
+    title = f"{config.env} ({counted(config.seeds, 'seed')})"
     final = {s: curve.success[s][:, -1] for s in curve.success}
     table = results_table({method_label(config.method): final}, title=f"Final success rate, {title}")
     quality = setup.summary.get("tl_quality", {})
@@ -99,7 +100,7 @@ def write_report(
     curve = learning_curve(stages["ifp"])
     names = get_recipe(config.env).goal_names()
     per_goal_curves = goal_learning_curves(stages["ifp"], names) if get_recipe(config.env).per_goal_report else None
-    title = f"{config.env} ({config.seeds} seeds)"
+    title = f"{config.env} ({counted(config.seeds, 'seed')})"
     plot_learning_curves({label: curve}, folder / "curves.png", title=title, per_goal=per_goal_curves)
     encodings = setup.encodings[0] if setup.encodings is not None else trained_codes(folder)
     if encodings is not None:

@@ -36,7 +36,14 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
-from experiments.cli import CLI_CONFIG, env_argument, valid_or_exit
+from experiments.cli import (
+    check_outputs_or_exit,
+    env_argument,
+    fail,
+    hold_or_exit,
+    parse_or_exit,
+    valid_or_exit,
+)
 from experiments.config import ExperimentConfig, default_config
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
 from experiments.recipes import recipe_names
@@ -181,8 +188,14 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
     default = None
     if env in recipe_names():
         default = StudyArgs(tyro.MISSING, experiment=dataclasses.replace(default_config(env), out=None))
-    args = tyro.cli(StudyArgs, args=argv, default=default, description=__doc__, config=CLI_CONFIG)
-    return study(args, valid_or_exit(settings, args))
+    args = parse_or_exit(StudyArgs, argv, default=default, description=__doc__)
+    configs = valid_or_exit(settings, args)
+    out = next(iter(configs.values())).out.parent  # the settings' folders lie in the study's
+    check_outputs_or_exit((out, "--out", "folder"))
+    if args.report_only and not out.is_dir():
+        fail(f"no setting of the {args.name} study has finished in {out}: nothing to report")
+    with hold_or_exit(out):
+        return study(args, configs)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from experiments.config import ExperimentConfig
 from experiments.reports import ifp_result, learning_curve
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.provenance import provenance
-from talar_jax.report import LearningCurve, percent_cell, plot_learning_curves
+from talar_jax.report import LearningCurve, counted, percent_cell, plot_learning_curves
 
 if TYPE_CHECKING:
     from experiments.study import StudyArgs
@@ -151,7 +151,7 @@ def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals:
     first = next(iter(configs.values()))
     out = first.out.parent
     steps = max(summary["ifp_env_steps_per_seed"] for summary in finals.values())
-    title = f"{args.name}, {first.env}, {first.seeds} seeds, IFP {steps:,} env steps per seed"
+    title = f"{args.name}, {first.env}, {counted(first.seeds, 'seed')}, IFP {steps:,} env steps per seed"
     curves = {label: curve for label in finals if (curve := setting_curve(configs[label])) is not None}
     speeds = {label: learning_speed(curve) for label, curve in curves.items()}
     missing = [label for label in configs if label not in finals]

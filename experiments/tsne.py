@@ -1,13 +1,14 @@
 """Paper Fig. 11: t-SNE of every representation on training and test instructions, from finished runs.
 
-``python -m experiments.tsne RUN_DIR [RUN_DIR ...] --out tsne.png [--seed 0]``
+``python -m experiments.tsne RUN_DIR [RUN_DIR ...] [--out FIGURE.png] [--seed 0]``
 
 Each RUN_DIR is a finished run of one env (a run root such as ``runs/clevr`` or a method folder such as
 ``runs/compare-clevr/bert-binary``). One row per run: the codes its seed gives every instruction of the env (the
 translated TL for TALAR, the Handcrafted / GLA codes, the trained encoding layer of BERT-*), one t-SNE over both sets,
 shown as a training and a test panel; beside the figure, ``<out>.json`` and the printout give each run's share of test
-instructions whose nearest training codes name their goal. ``experiments.compare`` writes the same figure for its
-methods.
+instructions whose nearest training codes name their goal. The figure goes to ``--out``, by default
+``tsne-seed<K>.png`` in the first RUN_DIR (beside the runs it draws, apart from the ``tsne.png`` a run or a comparison
+writes itself). ``experiments.compare`` writes the same figure for its methods.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import tyro
 
-from experiments.instruct import agent_command
+from experiments.cli import check_outputs_or_exit, fail, parse_or_exit
 from experiments.methods import method_label
 from experiments.recipes import get_recipe
 from experiments.reports import trained_codes
@@ -35,10 +36,17 @@ from talar_jax.report import plot_tsne_grid
 class TsneArgs:
     run_dirs: tyro.conf.Positional[tuple[Path, ...]]
     """Finished run folders of one env (run roots or method folders)."""
-    out: Path = Path("tsne.png")
-    """The figure to write."""
+    out: Path | None = None
+    """The figure to write, with its record beside it (<out>.json); default: tsne-seed<K>.png in the first
+    RUN_DIR."""
     seed: int = 0
     """Which seed's codes to project."""
+
+    def figure(self) -> Path:
+        """The figure's path: ``--out``, or ``tsne-seed<K>.png`` in the first run folder."""
+        if self.out is not None:
+            return self.out
+        return (self.run_dirs[0] if self.run_dirs else Path(".")) / f"tsne-seed{self.seed}.png"
 
 
 def nearest_training_goal_accuracy(codes: np.ndarray, goal_ids: np.ndarray, is_train: np.ndarray) -> float:
@@ -131,15 +139,23 @@ def tsne(args: TsneArgs) -> Path:
     for folder in folders:
         if not (folder / "ifp" / "stage.json").is_file():
             raise AgentError(f"the run in {folder} is not finished (its ifp stage has no stage.json)")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    path, skipped = write_tsne_grid(folders, args.out, args.seed)
+    args.figure().parent.mkdir(parents=True, exist_ok=True)
+    path, skipped = write_tsne_grid(folders, args.figure(), args.seed)
     print(f"wrote {path}" + (f" (left out, no sentence encoding: {', '.join(skipped)})" if skipped else ""))
     return path
 
 
 def main(argv: list[str] | None = None) -> Path:
+    """``python -m experiments.tsne``: a bad option or output path prints one ``error:`` line and exits with status
+    2, before any run is read."""
     runtime.start()
-    return agent_command(TsneArgs, tsne, argv, __doc__)
+    args = parse_or_exit(TsneArgs, argv, description=__doc__)
+    figure = args.figure()
+    check_outputs_or_exit((figure, "--out", "file"), (figure.with_suffix(".json"), "--out", "file"))
+    try:
+        return tsne(args)
+    except AgentError as error:
+        fail(str(error))
 
 
 if __name__ == "__main__":

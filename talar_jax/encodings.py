@@ -41,6 +41,7 @@ import numpy as np
 from talar_jax.baselines import AlignedEncodingLayer, NLEncodingLayer
 from talar_jax.checkpoint import load_tree, write_json_atomic
 from talar_jax.language import TOKEN_READOUT, TRANSLATOR_READOUTS
+from talar_jax.report import counted
 from talar_jax.talar import TalarConfig, make_translate
 from talar_jax.task_language import TaskLanguageSpec
 
@@ -389,7 +390,9 @@ def encoding_params(
     leaves = jax.tree.leaves(tree)
     seeds = min((np.shape(leaf)[0] if np.ndim(leaf) else 0) for leaf in leaves) if leaves else 0
     if not 0 <= seed < seeds:
-        raise EncodingError(f"seed {seed} is not among the {seeds} seeds of the encoding's parameters in {where}")
+        raise EncodingError(
+            f"seed {seed} is not among the {counted(seeds, 'seed')} of the encoding's parameters in {where}"
+        )
     return jax.tree.map(lambda x: np.asarray(x)[seed], tree)
 
 

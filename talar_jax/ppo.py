@@ -45,7 +45,8 @@ from talar_jax.types import TrainingState
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """PPO hyper-parameters (defaults: the paper's Table 2 where it gives them, SB3 otherwise)."""
+    """PPO hyper-parameters. The class defaults are the paper's Table 2 where it gives them (SB3 otherwise); the
+    experiment commands start from their env recipe's values."""
 
     num_envs: int = 64
     """Parallel environments per seed."""

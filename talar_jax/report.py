@@ -195,6 +195,11 @@ def plot_tsne_grid(
     return _save(fig, path, dpi=110)
 
 
+def counted(number: int, noun: str) -> str:
+    """``number`` and ``noun``, plural unless one: "1 seed", "5 seeds"."""
+    return f"{number:,} {noun}{'' if number == 1 else 's'}"
+
+
 def percent_cell(rates: Sequence[float] | np.ndarray) -> str:
     """``mean ± std`` in % of success rates in [0, 1] (one per seed), as every results table shows them."""
     percent = 100 * np.asarray(rates, float)

@@ -34,10 +34,11 @@ from talar_jax.task_language import (
 
 @dataclasses.dataclass(frozen=True)
 class TalarConfig:
-    """Hyper-parameters of the referential game and the translator (defaults: the paper's Table 2)."""
+    """Hyper-parameters of the referential game and the translator. The class defaults are the paper's Table 2; the
+    experiment commands start from their env recipe's values."""
 
     spec: TaskLanguageSpec = TaskLanguageSpec()
-    """Task-language shape: N_pn = 4 predicates, N_a = 2 arguments of size 5."""
+    """Task-language shape: N_pn predicates, N_a arguments, each argument a one-hot of arg_size."""
     generator_hidden: tuple[int, ...] = (128, 128)
     """Hidden layers of each argument and predicate network (Table 2: [128, 128, out], relu)."""
     receiver_hidden: tuple[int, ...] = (256,)

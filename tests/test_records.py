@@ -36,7 +36,7 @@ def test_a_recorded_run_restored_into_a_fresh_folder_counts_as_finished(clevr_ru
     assert exit_info.value.code == 2 and "holds a run" in capsys.readouterr().err
 
 
-def test_record_restore_and_annotate_a_synthetic_run(tmp_path):
+def test_record_restore_and_annotate_a_synthetic_run(tmp_path, capsys):
     """The three subcommands on a hand-made finished run (no training): what ``record`` copies and notes, what
     ``restore`` puts back, and the ``recorded`` block ``annotate`` adds to a summary without the budget fields."""
     run = tmp_path / "run"
@@ -65,8 +65,9 @@ def test_record_restore_and_annotate_a_synthetic_run(tmp_path):
         "summary.json",
         "talar_ifp_stage.json",
     ]
-    with pytest.raises(SystemExit, match="has no summary.json"):
+    with pytest.raises(SystemExit) as exit_info:
         records.main(["record", str(run), str(tmp_path / "elsewhere"), "--command", "x"])
+    assert exit_info.value.code == 2 and "has no summary.json" in capsys.readouterr().err
 
     back = tmp_path / "back" / "talar"
     assert records.restore(dest, back)[-3:] == ["ifp/stage.json", "ifp/ppo/metrics.jsonl", records.MARKER]

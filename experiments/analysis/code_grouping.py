@@ -12,12 +12,12 @@ too, where counting distinct codes is not.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from experiments.cli import ArgumentParser
 from experiments.reports import load_agent, trained_codes
 from experiments.tsne import goal_grouping as grouping
 from talar_jax import runtime
@@ -26,10 +26,8 @@ from talar_jax.agent import AgentError, find_method_folder
 
 def main(argv: list[str] | None = None) -> None:
     runtime.start()
-    parser = argparse.ArgumentParser(
-        prog="python -m experiments.analysis.code_grouping", description=__doc__.splitlines()[0]
-    )
-    parser.add_argument("run_dir")
+    parser = ArgumentParser(prog="python -m experiments.analysis.code_grouping", description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", help="a finished run folder (a run root such as runs/clevr, or its method folder)")
     args = parser.parse_args(argv)
     try:
         folder = find_method_folder(args.run_dir, prefer="talar")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.cli import ArgumentParser, check_outputs_or_exit
 from talar_jax.report import LearningCurve, plot_learning_curves
 
 
@@ -73,16 +74,19 @@ def table(curves: dict[str, dict], split: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m experiments.analysis.early_curves",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
     parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
-    parser.add_argument("--split", choices=("train", "test"), default="train")
+    parser.add_argument(
+        "--split", choices=("train", "test"), default="train", help="instruction split of the table (default: train)"
+    )
     parser.add_argument("--plot", type=Path, help="also write the curves up to --until to this PNG")
     args = parser.parse_args(argv)
+    check_outputs_or_exit((args.plot, "--plot", "file"))
     pairs = [m.split("=", 1) for m in args.methods]
     if any(len(p) != 2 or not p[0] for p in pairs):
         sys.exit("error: methods are given as LABEL=FOLDER")

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.cli import ArgumentParser
+
 DATA = Path(__file__).resolve().parents[2] / "talar_jax" / "language" / "data"
 
 
@@ -44,7 +46,7 @@ def classify(train: np.ndarray, train_goals: np.ndarray, held_out: np.ndarray) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m experiments.analysis.encoder_neighbours",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from envs.kitchen.tasks import BONUS_THRESH, task_distances
+from experiments.cli import ArgumentParser, check_outputs_or_exit
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
@@ -67,7 +68,7 @@ def seed_report(run_dir: str, seed: int, episodes: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     runtime.start()
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m experiments.analysis.side_tasks",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -79,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
+    check_outputs_or_exit((args.json, "--json", "file"))
     try:
         config = json.loads((find_method_folder(args.run_dir, prefer="talar") / "config.json").read_text())
         seeds = args.seeds if args.seeds is not None else range(int(config["seeds"]))

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments.cli import ArgumentParser, check_outputs_or_exit
 from experiments.config import default_config, resolve
 from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys, translator_readout
@@ -76,20 +77,29 @@ def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.nda
 
 def main(argv: list[str] | None = None) -> None:
     runtime.start()
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m experiments.analysis.translator_robustness",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("run", type=Path)
-    parser.add_argument("--env", required=True, choices=["clevr", "kitchen"])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--paraphrases", type=int, nargs="+", default=[0, 8])
-    parser.add_argument("--probability", type=float, default=0.5)
+    parser.add_argument("run", type=Path, help="a finished experiment folder (RUN above), e.g. runs/kitchen")
+    parser.add_argument("--env", required=True, choices=["clevr", "kitchen"], help="the env of RUN")
+    parser.add_argument("--seeds", type=int, default=5, help="translator seeds, the first of RUN's (default: 5)")
+    parser.add_argument(
+        "--paraphrases", type=int, nargs="+", default=[0, 8], help="paraphrase counts to compare (default: 0 8)"
+    )
+    parser.add_argument(
+        "--probability", type=float, default=0.5, help="chance a batch row reads a paraphrase (default: 0.5)"
+    )
     parser.add_argument("--steps", type=int, default=None, help="translator steps (default: the recipe's)")
     parser.add_argument("--learning-rate", type=float, default=None, help="translator LR (default: the recipe's)")
-    parser.add_argument("--development", type=Path, default=DEVELOPMENT_FILE)
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument(
+        "--development",
+        type=Path,
+        default=DEVELOPMENT_FILE,
+        help="JSON file of development instructions (default: the project's development.json)",
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     parser.add_argument("--unknown-words", action="store_true", help="paraphrases also use unknown words")
     parser.add_argument("--front-phrases", action="store_true", help="paraphrases also front the closing phrase")
     parser.add_argument(
@@ -98,6 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
     args = parser.parse_args(argv)
+    check_outputs_or_exit((args.json, "--json", "file"), (args.run / "translator-robustness", "RUN", "folder"))
 
     config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
     if args.steps:

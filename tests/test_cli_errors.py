@@ -1,0 +1,466 @@
+"""Bad input to any command: one ``error:`` line (two at most), exit status 2 and nothing on disk, before any work.
+Parse errors, typos (with tyro's "did you mean"), values a config rejects, output paths that cannot be written,
+a run folder another command holds; an explicit option under ``--quick``; help pages in plain text with every
+option described."""
+
+import dataclasses
+import io
+import os
+import re
+import subprocess
+import sys
+import textwrap
+import time
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import pytest
+
+from experiments import (
+    clevr,
+    compare,
+    generalize,
+    hrl,
+    instruct,
+    kitchen,
+    oracle,
+    paper,
+    patterns,
+    records,
+    study,
+    tsne,
+)
+from experiments.cli import check_output_path, output_path_problem, parse_or_exit, plain
+from experiments.config import ExperimentConfig, default_config, resolve
+from experiments.lock import FolderInUseError, hold, holder
+from experiments.recipes import get_recipe
+from talar_jax.report import counted
+from tests.conftest import TINY_BERT
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (relative path -> bytes); empty when it does not exist."""
+    if not folder.exists():
+        return {}
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _error(capsys, main, argv) -> str:
+    """Runs a command's ``main`` expecting exit status 2; returns its stderr (one or two lines, the first an
+    ``error:`` line, no traceback)."""
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    lines = err.splitlines()
+    assert 1 <= len(lines) <= 2 and lines[0].startswith("error: ") and "Traceback" not in err, err
+    return err
+
+
+@pytest.fixture
+def read_only(monkeypatch):
+    """Makes the folders passed to it unwritable for this test: chmod where that binds (not root), else
+    ``os.access`` answering no for them (root may write anywhere but a read-only mount)."""
+    folders: list[Path] = []
+
+    def make(folder: Path) -> Path:
+        folder.mkdir(parents=True, exist_ok=True)
+        folders.append(folder.resolve())
+        if os.geteuid() != 0:
+            folder.chmod(0o555)
+        return folder
+
+    real_access = os.access
+
+    def access(path, mode, *args, **kwargs):
+        if mode & os.W_OK and Path(path).resolve() in folders:
+            return False
+        return real_access(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "access", access)
+    yield make
+    for folder in folders:
+        folder.chmod(0o755)
+
+
+# --- parse errors --------------------------------------------------------------------------------------------------
+
+
+def test_a_value_that_does_not_parse_gets_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    err = _error(capsys, clevr.main, ["--seeds", "abc", "--out", str(out)])
+    assert err == "error: --seeds: not an integer: 'abc'"
+    assert "--ifp.learning-rate: not a number: 'x'" in _error(capsys, kitchen.main, ["--ifp.learning-rate", "x"])
+    assert "--seeds needs a value" in _error(capsys, clevr.main, ["--out", str(out), "--seeds"])
+    assert "unexpected argument: 3" in _error(capsys, clevr.main, ["--quick", "3", "--out", str(out)])
+    assert "--predicates: cannot read 'x'" in _error(capsys, study.main, ["ablation", "--predicates", "x"])
+    assert not out.exists()
+
+
+def test_a_typo_gets_one_line_with_the_hint(tmp_path, capsys):
+    out = tmp_path / "run"
+    err = _error(capsys, clevr.main, ["--sedes", "2", "--out", str(out)])
+    assert err.startswith("error: unrecognized option: --sedes 2") and "did you mean --seeds?" in err
+    err = _error(capsys, compare.main, ["--ifp.totl-env-steps", "5", "--out", str(out)])
+    assert "did you mean --ifp.total-env-steps" in err
+    assert "did you mean --methods?" in _error(capsys, hrl.main, ["--methds", "flat", "--out", str(out)])
+    assert not out.exists()
+
+
+def test_a_study_name_that_is_not_one_gets_one_line(tmp_path, capsys):
+    out = tmp_path / "study"
+    err = _error(capsys, study.main, ["foo", "--out", str(out)])
+    assert "invalid choice 'foo'; choose one of ablation, dataset-size, aligned, end-to-end, finetuned-bert" in err
+    assert "missing NAME (one of ablation" in _error(capsys, study.main, ["--out", str(out)])
+    assert not out.exists()
+
+
+def test_a_value_a_config_rejects_while_parsing_gets_one_line_naming_the_option(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["--ifp.total-env-steps", "-5", "--out", str(out)]
+    assert _error(capsys, clevr.main, argv) == "error: --ifp.total-env-steps must be >= 1, got -5"
+    err = _error(capsys, study.main, ["ablation", "--talar.rg-steps", "0"])
+    assert err == "error: --talar.rg-steps must be >= 1, got 0"
+    argv = ["--ifp.num-envs", "3", "--ifp.minibatch-size", "7", "--out", str(out)]
+    assert "error: --ifp: num_envs * rollout_length (192) must be a multiple" in _error(capsys, compare.main, argv)
+    assert not out.exists()
+
+
+def test_argparse_commands_give_one_line_too(tmp_path, capsys):
+    assert "invalid choice: 'recrd'" in _error(capsys, records.main, ["recrd"])
+    assert "required: dest, --command" in _error(capsys, records.main, ["record", str(tmp_path)])
+
+
+# --- output paths --------------------------------------------------------------------------------------------------
+
+
+def test_output_path_problems_are_found_without_creating_anything(tmp_path, read_only):
+    file = tmp_path / "file"
+    file.write_text("x")
+    assert output_path_problem(tmp_path / "new" / "deeper") is None
+    assert output_path_problem(file) == f"{file} is a file, not a folder"
+    assert output_path_problem(tmp_path, "file") == f"{tmp_path} is a folder, not a file"
+    under = file / "sub" / "x.png"
+    assert output_path_problem(under, "file") == f"{under} cannot be created: {file} is a file"
+    locked = read_only(tmp_path / "locked")
+    assert output_path_problem(locked) == f"{locked} is not writable"
+    deeper, video = locked / "a" / "b", locked / "v.gif"
+    assert output_path_problem(deeper) == f"{deeper} cannot be created: {locked} is not writable"
+    assert output_path_problem(video, "file") == f"{video} cannot be created: {locked} is not writable"
+    with pytest.raises(ValueError, match="^--json: "):
+        check_output_path(locked / "r.json", "--json", "file")
+    check_output_path(None, "--json", "file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "locked"] and not any(locked.iterdir())
+
+
+def _out_argv(name: str, out: Path) -> tuple:
+    """(main, argv) of a command writing its run folder to ``out``."""
+    quick = ["--quick", "--encoder", TINY_BERT, "--no-progress"]
+    return {
+        "clevr": (clevr.main, [*quick, "--out", str(out)]),
+        "compare": (compare.main, [*quick, "--methods", "onehot", "--out", str(out)]),
+        "patterns": (patterns.main, [*quick, "--out", str(out)]),
+        "study": (study.main, ["dataset-size", *quick, "--out", str(out)]),
+        "oracle": (oracle.main, ["--quick", "--out", str(out)]),
+        "hrl": (hrl.main, ["--quick", "--out", str(out)]),
+        "paper": (paper.main, ["--root", str(out)]),
+    }[name]
+
+
+COMMANDS_WITH_OUT = ("clevr", "compare", "patterns", "study", "oracle", "hrl", "paper")
+
+
+@pytest.mark.parametrize("name", COMMANDS_WITH_OUT)
+def test_an_output_folder_that_is_a_file_or_under_one_stops_the_command(name, tmp_path, capsys):
+    file = tmp_path / "file"
+    file.write_text("keep")
+    main, argv = _out_argv(name, file)
+    option = "--root" if name == "paper" else "--out"
+    assert _error(capsys, main, argv) == f"error: {option}: {file} is a file, not a folder"
+    main, argv = _out_argv(name, file / "run")
+    assert f"{file / 'run'} cannot be created: {file} is a file" in _error(capsys, main, argv)
+    assert _snapshot(tmp_path) == {"file": b"keep"}
+
+
+@pytest.mark.parametrize("name", ("clevr", "study", "hrl"))
+def test_an_output_folder_that_cannot_be_written_stops_the_command(name, tmp_path, capsys, read_only):
+    locked = read_only(tmp_path / "locked")
+    main, argv = _out_argv(name, locked / "run")
+    assert f"{locked / 'run'} cannot be created: {locked} is not writable" in _error(capsys, main, argv)
+    assert not any(locked.iterdir())
+
+
+def test_video_json_and_figure_paths_are_checked_before_anything_loads(tmp_path, capsys, read_only):
+    file = tmp_path / "file"
+    file.write_text("keep")
+    locked = read_only(tmp_path / "locked")
+    run = tmp_path / "no-run-here"  # the path checks come first: no run is loaded
+    err = _error(capsys, instruct.main, [str(run), "go", "--video", str(locked / "v.gif")])
+    assert err == f"error: --video: {locked / 'v.gif'} cannot be created: {locked} is not writable"
+    err = _error(capsys, instruct.main, [str(run), "go", "--video", str(file / "v.mp4")])
+    assert err == f"error: --video: {file / 'v.mp4'} cannot be created: {file} is a file"
+    argv = [str(run), "--instructions", str(file), "--json", str(locked / "r.json")]
+    assert "error: --json: " in _error(capsys, generalize.main, argv)
+    assert "error: --out: " in _error(capsys, tsne.main, [str(run), "--out", str(file / "fig.png")])
+    assert _snapshot(tmp_path) == {"file": b"keep"} and not any(locked.iterdir())
+
+
+def test_tsne_writes_into_the_first_run_folder_by_default():
+    args = tsne.TsneArgs(run_dirs=(Path("runs/compare-clevr"), Path("runs/clevr")), seed=2)
+    assert args.figure() == Path("runs/compare-clevr/tsne-seed2.png")  # beside the runs, not the current folder
+    assert dataclasses.replace(args, out=Path("x.png")).figure() == Path("x.png")
+
+
+# --- one command per run folder ------------------------------------------------------------------------------------
+
+HOLDER = textwrap.dedent(
+    """
+    import sys, time
+    from pathlib import Path
+    from experiments.lock import hold
+    folder = Path(sys.argv[1])
+    with hold(folder):
+        (folder / "first.txt").write_text("part one\\n")
+        print("held", flush=True)
+        sys.stdin.readline()  # until the test lets go
+        with (folder / "first.txt").open("a") as out:
+            out.write("part two\\n")
+    """
+)
+
+
+def _start_holder(folder: Path) -> subprocess.Popen:
+    """A process that takes the folder's lock as every command does, writes half its output and waits."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(folder)],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stdout.readline().strip() == "held"
+    return process
+
+
+def test_a_second_command_on_a_held_folder_stops_at_once_and_the_first_finishes_whole(tmp_path, capsys):
+    folder = tmp_path / "run"
+    first = _start_holder(folder)
+    try:
+        before = _snapshot(folder)
+        assert holder(folder)["pid"] == first.pid
+        start = time.perf_counter()
+        err = _error(capsys, clevr.main, ["--quick", "--encoder", TINY_BERT, "--seeds", "1", "--out", str(folder)])
+        assert time.perf_counter() - start < 30  # at once: no stage ran
+        assert err.startswith(f"error: {folder} is in use by process {first.pid} (") and "\n" not in err
+        for name in ("compare", "patterns", "study", "oracle", "hrl", "paper"):
+            main, argv = _out_argv(name, folder)
+            assert f"{folder} is in use by process {first.pid}" in _error(capsys, main, argv), name
+        assert _snapshot(folder) == before  # nothing changed
+        with pytest.raises(FolderInUseError, match="in use by process"), hold(folder):
+            pass
+    finally:
+        first.communicate("go\n", timeout=60)
+    assert first.returncode == 0
+    assert (folder / "first.txt").read_text() == "part one\npart two\n"  # the first's output is whole
+    with hold(folder):  # released when the first ended
+        assert holder(folder)["pid"] == os.getpid()
+
+
+def test_the_second_command_as_a_process_prints_one_line_and_exits_2(tmp_path):
+    folder = tmp_path / "run"
+    first = _start_holder(folder)
+    try:
+        second = subprocess.run(
+            [sys.executable, "-m", "experiments.oracle", "--quick", "--out", str(folder)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    finally:
+        first.communicate("go\n", timeout=60)
+    assert second.returncode == 2, second.stderr
+    lines = second.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {folder} is in use by process {first.pid}"), lines
+    assert sorted(p.name for p in folder.iterdir()) == [".lock", "first.txt"]
+
+
+def test_a_killed_holder_leaves_no_stale_lock(tmp_path):
+    folder = tmp_path / "run"
+    first = _start_holder(folder)
+    first.kill()  # SIGKILL: no clean-up runs
+    first.wait(timeout=60)
+    with hold(folder):
+        assert holder(folder)["pid"] == os.getpid()
+
+
+def test_the_lock_is_reentrant_within_a_process(tmp_path):
+    folder = tmp_path / "run"
+    with hold(folder), hold(folder / "."), hold(folder):  # compare and study run the pipeline on their own folder
+        pass
+    probe = "import sys\nfrom experiments.lock import hold\nwith hold(sys.argv[1]):\n    print('took it')\n"
+    taken = subprocess.run([sys.executable, "-c", probe, str(folder)], cwd=ROOT, capture_output=True, text=True)
+    assert taken.stdout.strip() == "took it", taken.stderr  # released when the outermost hold ended
+
+
+# --- --quick and explicit options ----------------------------------------------------------------------------------
+
+
+def test_an_explicit_budget_wins_over_quick():
+    parsed = parse_or_exit(
+        ExperimentConfig,
+        ["--quick", "--ifp.total-env-steps", "16384", "--talar.rg-steps", "500"],
+        default=default_config("clevr"),
+    )
+    config = resolve(parsed)
+    assert config.ifp.total_env_steps == 16_384 and config.talar.rg_steps == 500  # the explicit values
+    assert config.ifp.num_envs == 16 and config.talar.translator_steps == 300  # the rest at the quick budget
+    assert resolve(config) == config  # commands resolve twice
+    plain_quick = resolve(default_config("clevr", quick=True))
+    assert plain_quick.ifp.total_env_steps == 10_240 and plain_quick.talar.rg_steps == 300
+    recipe = get_recipe("clevr")
+    assert recipe.talar.rg_steps != 300 and recipe.ifp.total_env_steps != 10_240
+
+
+def test_the_oracle_keeps_its_explicit_options_under_quick():
+    quick = oracle.oracle_ppo_config(oracle.OracleArgs(quick=True))
+    assert (quick.num_envs, quick.rollout_length, quick.total_env_steps) == (16, 32, 10_240)
+    given = oracle.oracle_ppo_config(oracle.OracleArgs(quick=True, num_envs=32, total_env_steps=4096))
+    assert (given.num_envs, given.rollout_length, given.total_env_steps) == (32, 32, 4096)
+
+
+# --- help pages ----------------------------------------------------------------------------------------------------
+
+TYRO_COMMANDS = {
+    "clevr": (clevr.main, []),
+    "kitchen": (kitchen.main, []),
+    "compare": (compare.main, []),
+    "patterns": (patterns.main, []),
+    "study": (study.main, []),
+    "hrl": (hrl.main, []),
+    "oracle": (oracle.main, []),
+    "paper": (paper.main, []),
+    "instruct": (instruct.main, []),
+    "generalize": (generalize.main, []),
+    "tsne": (tsne.main, []),
+}
+
+
+SECTION = re.compile(r"^[\s│╭─]*([\w.]+ )?(positional arguments|options)\b")
+
+
+def _split_help(help_text: str) -> tuple[str, list[str]]:
+    """(the opening text, the lines of the option sections) of a tyro help page, framed or plain."""
+    lines = help_text.splitlines()
+    first = next(i for i, line in enumerate(lines) if SECTION.match(line))
+    return "\n".join(lines[:first]), lines[first:]
+
+
+def _undescribed(help_text: str) -> list[str]:
+    """Options of a tyro help page whose description is only its default (or nothing)."""
+    _, sections = _split_help(help_text)
+    entries: list[list[str]] = []
+    for raw in sections:
+        line = re.sub(r"^[│\s]*|[│\s]*$", "", raw)
+        if not line or SECTION.match(raw) or not line.strip("-─ ╭╰╮╯"):
+            continue
+        if re.match(r"-{1,2}[A-Za-z]", line) or re.match(r"\{[\w,-]+\}$", line):
+            entries.append([line])
+        elif entries:
+            entries[-1].append(line)
+    missing = []
+    for entry in entries:
+        head = re.split(r"\s{2,}", entry[0], maxsplit=1)
+        text = " ".join(([head[1]] if len(head) > 1 else []) + entry[1:]).strip()
+        if not text or text.startswith(("(default", "(required", "(fixed")):
+            missing.append(head[0])
+    return missing
+
+
+@pytest.mark.parametrize("name", sorted(TYRO_COMMANDS))
+def test_help_pages_are_plain_text_with_every_option_described(name):
+    main, argv = TYRO_COMMANDS[name]
+    printed = io.StringIO()
+    with redirect_stdout(printed), pytest.raises(SystemExit) as exit_info:
+        main([*argv, "--help"])
+    assert exit_info.value.code == 0
+    text = printed.getvalue()
+    opening, _ = _split_help(text)
+    assert "``" not in text and "Table 2)." not in opening
+    assert len(_split_help(text)[1]) > 5 and _undescribed(text) == [], name
+
+
+def test_the_pipeline_help_says_whose_defaults_it_shows():
+    printed = io.StringIO()
+    with redirect_stdout(printed), pytest.raises(SystemExit):
+        kitchen.main(["--help"])
+    text = printed.getvalue()
+    assert "The defaults shown are the kitchen recipe's" in text
+    assert "defaults: the paper's Table 2" not in text and "N_pn = 4 predicates" not in text
+
+
+ARGPARSE_PROBE = textwrap.dedent(
+    """
+    import argparse, importlib, sys
+    import experiments.cli as cli
+    from talar_jax import runtime
+    runtime.configure = runtime.start = lambda *a, **k: None
+    missing = []
+    def parse_args(self, *args, **kwargs):
+        parsers = [self]
+        while parsers:
+            parser = parsers.pop()
+            for action in parser._actions:
+                if isinstance(action, argparse._SubParsersAction):
+                    parsers.extend(action.choices.values())
+                elif action.help is None:
+                    missing.append(f"{parser.prog} {'/'.join(action.option_strings) or action.dest}")
+        raise SystemExit(0)
+    cli.ArgumentParser.parse_args = parse_args
+    for name in sys.argv[1:]:
+        try:
+            importlib.import_module(name).main()
+        except SystemExit:
+            pass
+    print("\\n".join(missing))
+    """
+)
+
+ARGPARSE_COMMANDS = (
+    "experiments.records",
+    "experiments.analysis.code_grouping",
+    "experiments.analysis.early_curves",
+    "experiments.analysis.encoder_neighbours",
+    "experiments.analysis.finetuned_bert_drift",
+    "experiments.analysis.side_tasks",
+    "experiments.analysis.translator_robustness",
+    "benchmarks.aligned_encoder",
+    "benchmarks.env_sps",
+    "benchmarks.finetuned_bert",
+    "benchmarks.kitchen_model_cost",
+    "benchmarks.pipeline",
+    "benchmarks.soak",
+    "benchmarks.supervised_layouts",
+    "benchmarks.train_sps",
+)
+
+
+def test_every_argparse_option_of_the_analyses_and_benchmarks_is_described():
+    probe = subprocess.run(
+        [sys.executable, "-c", ARGPARSE_PROBE, *ARGPARSE_COMMANDS], cwd=ROOT, capture_output=True, text=True
+    )
+    assert probe.returncode == 0, probe.stderr
+    assert probe.stdout.strip() == "", probe.stdout
+
+
+def test_plain_drops_markup_and_joins_wrapped_lines():
+    text = "First ``code`` line\ncontinues (``x``).\n\n    python -m example --flag\n\n- item one\n  goes on\n- two"
+    assert plain(text) == "First code line continues (x).\n    python -m example --flag\n- item one goes on\n- two"
+
+
+def test_counts_are_singular_for_one():
+    assert counted(1, "seed") == "1 seed" and counted(5, "seed") == "5 seeds"
+    assert counted(12_000, "tuple") == "12,000 tuples"
