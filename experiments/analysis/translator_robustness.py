@@ -75,8 +75,7 @@ def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.nda
     return float(np.mean([np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]))
 
 
-def main(argv: list[str] | None = None) -> None:
-    runtime.start()
+def _parser() -> ArgumentParser:
     parser = ArgumentParser(
         prog="python -m experiments.analysis.translator_robustness",
         description=__doc__,
@@ -107,25 +106,31 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--episodes", type=int, default=0, help="success episodes per seed and set (0: none)")
     parser.add_argument("--show-failures", type=int, default=10, help="development sentences most often missed")
-    args = parser.parse_args(argv)
-    check_outputs_or_exit((args.json, "--json", "file"), (args.run / "translator-robustness", "RUN", "folder"))
+    return parser
 
+
+def _config(args):
+    """The run's resolved recipe config with the command line's translator settings."""
     config = resolve(default_config(args.env, seeds=args.seeds, out=args.run, progress=False))
+    changes = {}
     if args.steps:
-        config = dataclasses.replace(config, talar=dataclasses.replace(config.talar, translator_steps=args.steps))
+        changes["translator_steps"] = args.steps
     if args.learning_rate:
-        talar = dataclasses.replace(config.talar, translator_learning_rate=args.learning_rate)
-        config = dataclasses.replace(config, talar=talar)
+        changes["translator_learning_rate"] = args.learning_rate
     if args.tokens is not None:
-        talar = dataclasses.replace(config.talar, translator_tokens=args.tokens == "on")
-        config = dataclasses.replace(config, talar=talar)
+        changes["translator_tokens"] = args.tokens == "on"
+    return dataclasses.replace(config, talar=dataclasses.replace(config.talar, **changes))
+
+
+def _inputs(args, config):
+    """(task-language data, cache, dataset, the generator's TL targets, the translator's features of every cached
+    sentence, the instruction sets by name, the development sentences)."""
     cache = build_cache(config.env, config.encoder, progress=False)
     dataset = TaskDataset.load(args.run / "oracle" / "dataset")
     data = make_task_language_data(dataset, cache, config.sentence_readout)
     generator = load_tree(args.run / "talar" / "task_language" / "params.msgpack")["generator"]
     generate = jax.jit(jax.vmap(make_generate_task_language(config.talar), in_axes=(0, None, None)))
     targets = jnp.asarray(generate(generator, data.states, data.final_states), jnp.float32)
-
     encoder = load_encoder(config.encoder)
     features = readout_features(cache, translator_readout(config), encoder)
     train_rows = load_instructions(config.env, "train").sentence_ids
@@ -137,122 +142,143 @@ def main(argv: list[str] | None = None) -> None:
         "test": (features[test_rows], cache.goal_ids[test_rows]),
         "development": (dev_features, np.asarray(dev_goals)),
     }
+    return data, cache, dataset, targets, features, sets, dev_sentences
+
+
+def _translators(args, talar, count: int, edits: str, seed_keys, targets, train_data) -> tuple[dict, float]:
+    """(seed-stacked translator params, fit seconds): the run's own translator for the recipe's paper setting, one an
+    earlier call saved, or a new fit from the run's seed keys (saved for the next call)."""
+    rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
+    saved = (
+        args.run / "translator-robustness" / f"paraphrases{count}{edits}-steps{talar.translator_steps}{rate}.msgpack"
+    )
+    own = args.run / "talar" / "translator" / "params.msgpack"
+    recipe_setting = count == 0 and args.steps is None and args.learning_rate is None and args.tokens is None
+    if recipe_setting and own.is_file():  # the run's own translator (the same training)
+        return load_tree(own), 0.0
+    if saved.is_file():  # trained by an earlier call (e.g. before the run's policy had finished)
+        return load_tree(saved), 0.0
+    timings: dict[str, float] = {}
+    params, _ = fit_seeds(
+        make_train_translator(talar), seed_keys, targets, train_data, in_axes=(0, None), progress=False, timings=timings
+    )
+    saved.parent.mkdir(parents=True, exist_ok=True)
+    save_tree(saved, params)
+    return params, timings["run_s"]
+
+
+def _seed_scores(args, translate, params, seed: int, sets, num_dev: int):
+    """One seed's TL agreement per set, its development misses, and (with ``--episodes``) the run's policy's success
+    on this translator's codes."""
+    seed_params = jax.tree.map(lambda x: x[seed : seed + 1], params)
+    train_codes = np.asarray(translate(seed_params, sets["train"][0]))[0].round()
+    goal_codes = {}
+    for goal in np.unique(sets["train"][1]):
+        rows, counts = np.unique(train_codes[sets["train"][1] == goal], axis=0, return_counts=True)
+        goal_codes[int(goal)] = rows[np.argmax(counts)]
+    agreements, misses = {}, np.zeros(num_dev, int)
+    for name, (x, goals) in sets.items():
+        codes = np.asarray(translate(seed_params, x))[0].round()
+        agreements[name] = agreement(codes, goals, goal_codes)
+        if name == "development":
+            misses += [not np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]
+    if not args.episodes:
+        return agreements, misses, {}
+    # the run's policy, fed this translator's codes: valid while the goals keep the run's codes
+    agent = load_agent(args.run / "talar", seed=seed)
+    same = all(np.array_equal(agent.goal_code(g).round(), c) for g, c in goal_codes.items())
+    swapped = SwappedTranslator(agent, lambda x, p=seed_params: np.asarray(translate(p, x))[0].round(), goal_codes)
+    named = {n: (x, g, None) for n, (x, g) in sets.items()}
+    named["yours"] = named.pop("development")
+    rates = evaluate_seed(swapped, named, args.episodes, rng_seed=0)
+    return agreements, misses, {**{name: rate["success"] for name, rate in rates.items()}, "goal_codes_unchanged": same}
+
+
+def _print_variant(args, count: int, result: dict, success: dict, misses: np.ndarray, dev_sentences) -> None:
+    per_seed, quality = result["per_seed"], result["quality_per_seed"]
+    line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
+    print(f"paraphrases {count}: TL agreement {line}  ({result['total_s']:.0f} s)", flush=True)
+    line = ", ".join(f"{k} {np.mean(v):.3f}" for k, v in quality.items())
+    print(f"    report quality: {line}; fit {result['translator_fit_s']:.0f} s without compile", flush=True)
+    if success:
+        rates = {n: v for n, v in success.items() if n != "goal_codes_unchanged"}
+        line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in rates.items())
+        unchanged = success["goal_codes_unchanged"]
+        print(f"    success with the run's policy: {line} (goal codes unchanged per seed: {unchanged})")
+    worst = np.argsort(-misses, kind="stable")[: args.show_failures]
+    for row in worst[misses[worst] > 0]:
+        print(f"    {misses[row]}/{args.seeds} seeds miss: {dev_sentences[row]!r}", flush=True)
+
+
+def _variant(args, config, count: int, inputs) -> tuple[str, dict]:
+    """Trains (or reuses) the translators with ``count`` paraphrases and scores them; prints the result and returns
+    (its label, the result)."""
+    data, cache, dataset, targets, features, sets, dev_sentences = inputs
+    talar = dataclasses.replace(
+        config.talar,
+        translator_paraphrases=count,
+        paraphrase_probability=args.probability,
+        paraphrase_unknown_words=args.unknown_words,
+        paraphrase_front_phrases=args.front_phrases,
+    )
+    start = time.perf_counter()
+    train_data = paraphrased_data(
+        MethodContext(dataclasses.replace(config, talar=talar), "", data, cache, dataset, None)
+    )
+    encode_s = time.perf_counter() - start
+    edits = "".join(
+        suffix
+        for suffix, on in (
+            ("-unknown", talar.paraphrase_unknown_words),
+            ("-front", talar.paraphrase_front_phrases),
+            ("-tokens", talar.translator_tokens),
+        )
+        if on
+    )
     seed_keys = stage_seed_keys(config.seed, "talar/translator", args.seeds)
-    results = {}
-    for count in args.paraphrases:
-        talar = dataclasses.replace(
-            config.talar,
-            translator_paraphrases=count,
-            paraphrase_probability=args.probability,
-            paraphrase_unknown_words=args.unknown_words,
-            paraphrase_front_phrases=args.front_phrases,
-        )
-        variant = dataclasses.replace(config, talar=talar)
-        ctx = MethodContext(variant, "", data, cache, dataset, None)
-        start = time.perf_counter()
-        train_data = paraphrased_data(ctx)
-        encode_s = time.perf_counter() - start
-        edits = (
-            ("-unknown" if talar.paraphrase_unknown_words else "")
-            + ("-front" if talar.paraphrase_front_phrases else "")
-            + ("-tokens" if talar.translator_tokens else "")
-        )
-        label = f"{count}{edits}"
-        rate = f"-lr{args.learning_rate:g}" if args.learning_rate else ""
-        saved = (
-            args.run
-            / "translator-robustness"
-            / f"paraphrases{count}{edits}-steps{talar.translator_steps}{rate}.msgpack"
-        )
-        own = args.run / "talar" / "translator" / "params.msgpack"
-        fit_s = 0.0
-        if (
-            count == 0 and args.steps is None and args.learning_rate is None and args.tokens is None and own.is_file()
-        ):  # the run's own translator (the same training)
-            params = load_tree(own)
-        elif saved.is_file():  # trained by an earlier call (e.g. before the run's policy had finished)
-            params = load_tree(saved)
-        else:
-            timings: dict[str, float] = {}
-            params, _ = fit_seeds(
-                make_train_translator(talar),
-                seed_keys,
-                targets,
-                train_data,
-                in_axes=(0, None),
-                progress=False,
-                timings=timings,
-            )
-            fit_s = timings["run_s"]
-            saved.parent.mkdir(parents=True, exist_ok=True)
-            save_tree(saved, params)
-        translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
-        tables = np.asarray(translate(params, features))
-        quality = [task_language_quality(t, cache.goal_ids, cache.is_train) for t in tables]
-        quality = {k: [round(q[k], 3) for q in quality] for k in quality[0]}
-        per_seed = {name: [] for name in sets}
-        misses = np.zeros(len(dev_sentences), int)
-        success: dict[str, list] = {}
-        for seed in range(args.seeds):
-            seed_params = jax.tree.map(lambda x: x[seed : seed + 1], params)
-            train_codes = np.asarray(translate(seed_params, sets["train"][0]))[0].round()
-            goal_codes = {}
-            for goal in np.unique(sets["train"][1]):
-                rows, counts = np.unique(train_codes[sets["train"][1] == goal], axis=0, return_counts=True)
-                goal_codes[int(goal)] = rows[np.argmax(counts)]
-            for name, (x, goals) in sets.items():
-                codes = np.asarray(translate(seed_params, x))[0].round()
-                per_seed[name].append(agreement(codes, goals, goal_codes))
-                if name == "development":
-                    misses += [not np.array_equal(c, goal_codes.get(int(g))) for c, g in zip(codes, goals)]
-            if args.episodes:
-                # the run's policy, fed this translator's codes: valid while the goals keep the run's codes
-                agent = load_agent(args.run / "talar", seed=seed)
-                same = all(np.array_equal(agent.goal_code(g).round(), c) for g, c in goal_codes.items())
-                swapped = SwappedTranslator(
-                    agent, lambda x, p=seed_params: np.asarray(translate(p, x))[0].round(), goal_codes
-                )
-                named = {n: (x, g, None) for n, (x, g) in sets.items()}
-                named["yours"] = named.pop("development")
-                rates = evaluate_seed(swapped, named, args.episodes, rng_seed=0)
-                for name, rate in rates.items():
-                    success.setdefault(name, []).append(rate["success"])
-                success.setdefault("goal_codes_unchanged", []).append(bool(same))
-        results[label] = {
-            "per_seed": per_seed,
-            "success_per_seed": success,
-            "quality_per_seed": quality,
-            "translator_fit_s": fit_s,
-            "encode_s": encode_s,
-            "total_s": time.perf_counter() - start,
-        }
-        line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in per_seed.items())
-        print(f"paraphrases {count}: TL agreement {line}  ({results[label]['total_s']:.0f} s)", flush=True)
-        line = ", ".join(f"{k} {np.mean(v):.3f}" for k, v in quality.items())
-        print(f"    report quality: {line}; fit {fit_s:.0f} s without compile", flush=True)
-        if success:
-            unchanged = success.pop("goal_codes_unchanged")
-            line = ", ".join(f"{n} {100 * np.mean(v):.1f} ± {100 * np.std(v):.1f}" for n, v in success.items())
-            print(f"    success with the run's policy: {line} (goal codes unchanged per seed: {unchanged})")
-            success["goal_codes_unchanged"] = unchanged
-        worst = np.argsort(-misses, kind="stable")[: args.show_failures]
-        for row in worst[misses[worst] > 0]:
-            print(f"    {misses[row]}/{args.seeds} seeds miss: {dev_sentences[row]!r}", flush=True)
-        results[label]["development_misses"] = {dev_sentences[r]: int(misses[r]) for r in np.flatnonzero(misses)}
+    params, fit_s = _translators(args, talar, count, edits, seed_keys, targets, train_data)
+    translate = jax.jit(jax.vmap(make_translate(talar), in_axes=(0, None)))
+    quality = [
+        task_language_quality(t, cache.goal_ids, cache.is_train) for t in np.asarray(translate(params, features))
+    ]
+    per_seed, misses, success = {name: [] for name in sets}, np.zeros(len(dev_sentences), int), {}
+    for seed in range(args.seeds):
+        agreements, seed_misses, seed_success = _seed_scores(args, translate, params, seed, sets, len(dev_sentences))
+        misses += seed_misses
+        for name, value in agreements.items():
+            per_seed[name].append(value)
+        for name, value in seed_success.items():
+            success.setdefault(name, []).append(value)
+    result = {
+        "per_seed": per_seed,
+        "success_per_seed": success,
+        "quality_per_seed": {k: [round(q[k], 3) for q in quality] for k in quality[0]},
+        "translator_fit_s": fit_s,
+        "encode_s": encode_s,
+        "total_s": time.perf_counter() - start,
+    }
+    _print_variant(args, count, result, success, misses, dev_sentences)
+    result["development_misses"] = {dev_sentences[r]: int(misses[r]) for r in np.flatnonzero(misses)}
+    return f"{count}{edits}", result
+
+
+def main(argv: list[str] | None = None) -> None:
+    runtime.start()
+    args = _parser().parse_args(argv)
+    check_outputs_or_exit((args.json, "--json", "file"), (args.run / "translator-robustness", "RUN", "folder"))
+    config = _config(args)
+    inputs = _inputs(args, config)
+    results = dict(_variant(args, config, count, inputs) for count in args.paraphrases)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(
-            json.dumps(
-                {
-                    "run": str(args.run),
-                    "env": args.env,
-                    "probability": args.probability,
-                    "translator_steps": config.talar.translator_steps,
-                    "results": results,
-                },
-                indent=2,
-            )
-        )
+        payload = {
+            "run": str(args.run),
+            "env": args.env,
+            "probability": args.probability,
+            "translator_steps": config.talar.translator_steps,
+            "results": results,
+        }
+        args.json.write_text(json.dumps(payload, indent=2))
 
 
 if __name__ == "__main__":
