@@ -8,12 +8,20 @@ its own env's entry. For every seed of the run, and for the run's training and t
 it prints TL agreement (the fraction of sentences whose code equals their goal's training code) and success on
 ``--episodes`` episodes (a goal uniform over the set's goals, one of its sentences uniform); the three sets share the
 episodes' goals and random keys, so their success rates are paired.
+
+Every sentence also gets the agent's verdict (``talar_jax.confidence``: understood, ambiguous or not understood,
+calibrated by the run's ``confidence.json``): beside plain agreement and success, each set reports its coverage (the
+share of its sentences the agent acts on), the accuracy among those (the verdict's goal is the sentence's) and the
+success of the paired episodes whose sentence it acts on. Your sentences are listed one by one (``--json``, and the
+markdown table ``--markdown``): intended goal, decoded goal, confidence, verdict and, when the agent acts on it, the
+success of ``--sentence-episodes`` episodes on its intended goal.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections import Counter
 from pathlib import Path
 
 import jax
@@ -22,9 +30,11 @@ import tyro
 
 from experiments.cli import output_path_problem
 from experiments.instruct import agent_command
+from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError, find_method_folder
+from talar_jax.confidence import CONFIDENCE_FILE, VERDICTS
 from talar_jax.language import load_instructions, load_user_instructions
 from talar_jax.report import counted
 
@@ -41,6 +51,10 @@ class GeneralizeArgs:
     """Also write the results here."""
     rng_seed: int = 0
     """Seed of the episodes' randomness."""
+    sentence_episodes: int = 1
+    """Episodes per sentence of yours the agent acts on (its per-sentence success; 0: none)."""
+    markdown: Path | None = None
+    """Write the per-sentence table of your sentences here (markdown)."""
 
 
 def instruction_sets(agent: Agent, instructions: Path) -> dict[str, tuple[np.ndarray, np.ndarray, list[str]]]:
@@ -56,21 +70,59 @@ def instruction_sets(agent: Agent, instructions: Path) -> dict[str, tuple[np.nda
     return sets
 
 
-def evaluate_seed(agent: Agent, sets: dict, episodes: int, rng_seed: int) -> dict[str, dict[str, float]]:
+def evaluate_seed(
+    agent: Agent, sets: dict, episodes: int, rng_seed: int, sentence_episodes: int = 0
+) -> tuple[dict[str, dict[str, float]], list[dict]]:
     """TL agreement and paired-episode success of every instruction set for one seed: every set plays the same
-    goals with the same episode keys (the goals the user's sentences cover)."""
+    goals with the same episode keys (the goals the user's sentences cover); with the verdicts' coverage, accuracy
+    among the sentences acted on and success of the episodes whose sentence is acted on. Also returns one record per
+    sentence of the user's set (with the success of ``sentence_episodes`` episodes on its goal when acted on)."""
     choice = np.random.default_rng(rng_seed)
     goal_pool = np.array(sorted(set(sets["yours"][1].tolist())))
     goals = goal_pool[choice.integers(0, len(goal_pool), episodes)]
     rng_episodes = jax.random.key(rng_seed)
-    out = {}
-    for name, (features, sentence_goals, _) in sets.items():
+    out, records = {}, []
+    for name, (features, sentence_goals, sentences) in sets.items():
         codes = agent.translate_features(features)
         agree = [np.array_equal(code.round(3), agent.goal_code(goal)) for code, goal in zip(codes, sentence_goals)]
+        verdicts = agent.judge(sentences, features)
+        acts = np.array([v.acts for v in verdicts])
+        right = np.array([v.goal == goal for v, goal in zip(verdicts, sentence_goals, strict=True)])
         rows = np.array([choice.choice(np.flatnonzero(sentence_goals == goal)) for goal in goals])
         success = agent.success_rate(codes[rows], goals, rng_episodes)
-        out[name] = {"tl_agreement": float(np.mean(agree)), "success": float(np.mean(success)), "sentences": len(codes)}
+        out[name] = {
+            "tl_agreement": float(np.mean(agree)),
+            "success": float(np.mean(success)),
+            "sentences": len(codes),
+            "coverage": float(acts.mean()),
+            "accuracy_acted": float(right[acts].mean()) if acts.any() else None,
+            "success_acted": float(success[acts[rows]].mean()) if acts[rows].any() else None,
+            "verdicts": {v: int(sum(x.verdict == v for x in verdicts)) for v in VERDICTS},
+        }
+        if name == "yours":
+            per_sentence = sentence_success(agent, codes, sentence_goals, acts, sentence_episodes, rng_seed)
+            for index, (verdict, goal) in enumerate(zip(verdicts, sentence_goals, strict=True)):
+                record = verdict.to_json()
+                record["understood_goal"] = record.pop("goal")
+                records.append({"goal": int(goal), **record, "success": per_sentence[index]})
+    return out, records
+
+
+def sentence_success(agent: Agent, codes, goals, acts, episodes: int, rng_seed: int) -> list[float | None]:
+    """Per sentence: its success rate over ``episodes`` episodes on its goal when acted on, else None (one call)."""
+    acted = np.flatnonzero(acts)
+    out: list[float | None] = [None] * len(goals)
+    if episodes < 1 or not len(acted):
+        return out
+    rows = np.repeat(acted, episodes)
+    success = agent.success_rate(codes[rows], goals[rows], jax.random.key(rng_seed + 1))
+    for index, value in zip(acted, success.reshape(len(acted), episodes).mean(1), strict=True):
+        out[int(index)] = float(value)
     return out
+
+
+def _pct(value) -> str:
+    return "–" if value is None else f"{100 * value:.1f}"
 
 
 def report(per_seed: list[dict[str, dict[str, float]]]) -> str:
@@ -89,6 +141,49 @@ def report(per_seed: list[dict[str, dict[str, float]]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def selective_report(per_seed: list[dict[str, dict[str, float]]]) -> str:
+    """Per seed and set: coverage, accuracy among the sentences acted on, success of the episodes acted on."""
+    names = list(per_seed[0])
+    metrics = ("coverage", "accuracy_acted", "success_acted")
+    lines = ["| seed | " + " | ".join(f"{n}: coverage | {n}: right among acted | {n}: success acted" for n in names)]
+    lines[0] += " |"
+    lines.append("|---|" + "---:|---:|---:|" * len(names))
+    for seed, row in enumerate(per_seed):
+        lines.append(f"| {seed} | " + " | ".join(_pct(row[n][m]) for n in names for m in metrics) + " |")
+    cells = []
+    for n in names:
+        for m in metrics:
+            values = [row[n][m] for row in per_seed if row[n][m] is not None]
+            cells.append(f"{100 * np.mean(values):.1f}" if values else "–")
+    lines.append("| mean | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def sentence_table(sentences: list[str], per_seed_records: list[list[dict]], names: list[str]) -> str:
+    """Markdown: one row per sentence of yours, over the seeds: intended goal, decoded goal (the most common), mean
+    confidence, the verdicts and the mean success of the seeds that acted."""
+    lines = [
+        "| sentence | intended goal | decoded goal | confidence | verdict | success when acted |",
+        "|---|---|---|---:|---|---:|",
+    ]
+    for index, sentence in enumerate(sentences):
+        records = [records[index] for records in per_seed_records]
+        decoded = Counter(r["decoded_goal"] for r in records).most_common(1)[0][0]
+        verdicts = Counter(r["verdict"] for r in records)
+        verdict = ", ".join(f"{v} {c}/{len(records)}" for v, c in verdicts.most_common())
+        success = [r["success"] for r in records if r["success"] is not None]
+        cells = [
+            sentence.replace("|", "\\|"),
+            names[records[0]["goal"]],
+            names[decoded] if decoded is not None else "none",
+            f"{np.mean([r['confidence'] for r in records]):.2f}",
+            verdict,
+            _pct(np.mean(success)) if success else "–",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def seed_line(seed: int, row: dict[str, dict]) -> str:
     """One seed's TL agreement and success per instruction set, in percent."""
     parts = [
@@ -101,11 +196,14 @@ def seed_line(seed: int, row: dict[str, dict]) -> str:
 def generalize(args: GeneralizeArgs) -> dict:
     if args.episodes < 1:
         raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.json is not None and output_path_problem(args.json, "file"):
-        raise AgentError(f"--json: {output_path_problem(args.json, 'file')}")
+    for option, path in (("--json", args.json), ("--markdown", args.markdown)):
+        if path is not None and output_path_problem(path, "file"):
+            raise AgentError(f"{option}: {output_path_problem(path, 'file')}")
     folder = find_method_folder(args.run_dir, prefer="talar")
     seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
-    per_seed, sizes = [], {}
+    if args.sentence_episodes < 0:
+        raise AgentError(f"--sentence-episodes must be >= 0, got {args.sentence_episodes}")
+    per_seed, per_sentence, sizes = [], [], {}
     for seed in range(seeds):
         agent = load_agent(folder, seed=seed)
         if seed == 0:
@@ -116,11 +214,38 @@ def generalize(args: GeneralizeArgs) -> dict:
             sizes = {name: len(s[2]) for name, s in sets.items()}
             counts = ", ".join(f"{name} {count}" for name, count in sizes.items())
             print(f"run: {folder} ({agent.method}, {agent.env_name}, {counted(seeds, 'seed')}); sentences: {counts}")
-        per_seed.append(evaluate_seed(agent, sets, args.episodes, args.rng_seed))
+            if not agent.calibrated:
+                print(f"confidence: default calibration (no {CONFIDENCE_FILE} in {folder})")
+        row, records = evaluate_seed(agent, sets, args.episodes, args.rng_seed, args.sentence_episodes)
+        per_seed.append(row)
+        per_sentence.append(records)
         print(seed_line(seed, per_seed[-1]), flush=True)
     table = report(per_seed)
     print(table)
-    result = {"run": str(folder), "episodes_per_seed": args.episodes, "sentences": sizes, "per_seed": per_seed}
+    print("selective (the agent acts only on the sentences it understood):\n")
+    print(selective_report(per_seed))
+    names = get_recipe(agent.env_name).goal_names()
+    sentences_table = sentence_table(sets["yours"][2], per_sentence, names)
+    if len(sets["yours"][2]) <= 60:
+        print(sentences_table)
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(
+            f"# {folder}: your sentences\n\n{table}\n{selective_report(per_seed)}\n{sentences_table}"
+        )
+        print(f"per-sentence table: {args.markdown}")
+    yours = [
+        {"sentence": sentence, "per_seed": [records[index] for records in per_sentence]}
+        for index, sentence in enumerate(sets["yours"][2])
+    ]
+    result = {
+        "run": str(folder),
+        "episodes_per_seed": args.episodes,
+        "sentences": sizes,
+        "per_seed": per_seed,
+        "calibrated": bool(agent.calibrated),
+        "yours": yours,
+    }
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2))

@@ -1,18 +1,26 @@
-"""Give a trained agent a sentence: see its task language, the goal it decodes to, its success, and a video.
+"""Give a trained agent a sentence: see its task language, the goal it decodes to, how sure it is, its success, and a
+video.
 
 ``python -m experiments.instruct RUN_DIR "Open the microwave door" [--seed K] [--episodes N] [--goal G]
-[--video out.gif|out.mp4]``
+[--video out.gif|out.mp4] [--act-anyway] [--json OUT]``; ``python -m experiments.instruct RUN_DIR`` (no sentence)
+reads sentences from stdin, one per line, and answers each with the agent loaded and compiled once (an empty line
+gets one error line; the session ends at end of input).
 
 RUN_DIR is a finished ``experiments.clevr`` / ``experiments.kitchen`` run (``runs/kitchen`` or its method folder).
-The success is measured on the goal the sentence means: ``--goal`` (an id, or a kitchen sub-task name) when given,
-otherwise the goal the sentence's code decodes to (the goal most training instructions with that code have), and
-the output says which. The video shows the first episode (needs an OpenGL backend, see ``envs.render``; without
-one the evaluation still runs and says that no video was written).
+Every sentence gets a verdict (``talar_jax.confidence``, calibrated by the run's ``confidence.json``, see
+``experiments.calibrate``): the agent acts only on a sentence it understood; on an ambiguous or not understood one
+it says why in one line, with the likeliest goals, and runs no episode, unless ``--act-anyway``. The success is
+measured on the goal the sentence means: ``--goal`` (an id, or a kitchen sub-task name) when given, otherwise the
+goal the sentence's code decodes to (the goal most training instructions with that code have), and the output says
+which. The video shows the first episode (needs an OpenGL backend, see ``envs.render``; without one the evaluation
+still runs and says that no video was written). ``--json OUT`` writes, per sentence, its code, decoded goal,
+confidence, verdict and candidates, and the success when it acted (one object; a list in the stdin mode).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -27,14 +35,15 @@ from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError
+from talar_jax.confidence import CONFIDENCE_FILE
 
 
 @dataclasses.dataclass(frozen=True)
 class InstructArgs:
     run_dir: Annotated[Path, tyro.conf.Positional]
     """A finished run folder (``runs/kitchen``, or a method folder such as ``runs/kitchen/talar``)."""
-    sentence: Annotated[str, tyro.conf.Positional]
-    """The instruction, in any words."""
+    sentence: Annotated[str | None, tyro.conf.Positional] = None
+    """The instruction, in any words (none: read sentences from stdin, one per line)."""
     seed: int = 0
     """Which of the run's seeds acts."""
     episodes: int = 20
@@ -47,6 +56,10 @@ class InstructArgs:
     """Act by the policy's mode instead of sampling (the experiments evaluate sampled actions)."""
     rng_seed: int = 0
     """Seed of the episodes' randomness."""
+    act_anyway: bool = False
+    """Act on a sentence the agent is not sure about (ambiguous or not understood) all the same."""
+    json: Path | None = None
+    """Write each sentence's code, decoded goal, confidence, verdict, candidates and success here."""
 
 
 def format_code(agent: Agent, code: np.ndarray) -> str:
@@ -79,36 +92,86 @@ def parse_goal(goal: str | None, names: list[str]) -> int | None:
 
 def check_args(args: InstructArgs) -> None:
     """The checks that need no loading (one ``AgentError`` per bad input)."""
-    if not args.sentence.strip():
+    if args.sentence is not None and not args.sentence.strip():
         raise AgentError("the sentence is empty")
+    if args.sentence is None and args.video is not None:
+        raise AgentError("--video needs a sentence on the command line (not sentences read from stdin)")
     if args.episodes < 1:
         raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
     if args.video is not None and args.video.suffix not in (".gif", ".mp4"):
         raise AgentError(f"--video must end in .gif or .mp4, got {args.video}")
-    if args.video is not None and output_path_problem(args.video, "file"):
-        raise AgentError(f"--video: {output_path_problem(args.video, 'file')}")
+    for option, path in (("--video", args.video), ("--json", args.json)):
+        if path is not None and output_path_problem(path, "file"):
+            raise AgentError(f"{option}: {output_path_problem(path, 'file')}")
 
 
-def instruct(args: InstructArgs) -> dict:
-    """Loads the agent, translates the sentence, runs the episodes and writes the video; returns what it printed."""
+def instruct(args: InstructArgs) -> dict | list[dict]:
+    """Loads the agent and answers the sentence (or each sentence of stdin); returns what it printed as records."""
     check_args(args)
     start = time.perf_counter()
     agent = load_agent(args.run_dir, seed=args.seed)
     names = get_recipe(agent.env_name).goal_names()
     goal = parse_goal(args.goal, names)
     loaded = time.perf_counter()
-    code = agent.translate(args.sentence)[0]
-    decoded = agent.nearest_goal(code)
-    translated = time.perf_counter()
     print(f"run: {agent.folder} ({agent.method}, {agent.env_name}, seed {agent.seed})")
-    print(f'sentence: "{args.sentence}"')
+    if not agent.calibrated:
+        print(
+            f"confidence: default calibration (no {CONFIDENCE_FILE} in {agent.folder}; "
+            f"python -m experiments.calibrate {agent.folder} makes one)"
+        )
+    if args.sentence is not None:
+        result = answer(agent, args, args.sentence, names, goal, loaded - start)
+        write_json(args.json, result)
+        return result
+    results = []
+    for line in sys.stdin:
+        sentence = line.strip()
+        if not sentence:
+            print("error: the sentence is empty", file=sys.stderr, flush=True)
+            continue
+        try:
+            results.append(answer(agent, args, sentence, names, goal, None))
+        except AgentError as error:  # a sentence the encoder cannot read: one line, and the next sentence
+            print(f"error: {error}", file=sys.stderr, flush=True)
+            continue
+        write_json(args.json, results)
+        sys.stdout.flush()
+    write_json(args.json, results)
+    return results
+
+
+def write_json(path: Path | None, payload) -> None:
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(payload, indent=2) + "\n")
+
+
+def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], goal: int | None, load_s) -> dict:
+    """Translates and judges one sentence, acts on it when the verdict (or ``--act-anyway``) says so; prints the
+    lines and returns the record ``--json`` writes."""
+    begun = time.perf_counter()
+    code = agent.translate(sentence)[0]
+    decoded = agent.nearest_goal(code)
+    verdict = agent.understand(sentence)
+    translated = time.perf_counter()
+    print(f'sentence: "{sentence}"')
     print(f"code: {format_code(agent, code)}")
     if decoded is None:
         print("decodes to: no goal (no training instruction has this code)")
     else:
         print(f"decodes to: goal {decoded} ({names[decoded]}), the goal most training instructions with this code have")
+    candidates = ", ".join(f"{names[g]} {score:.2f}" for g, score in verdict.candidates)
+    print(f"confidence: {verdict.confidence:.2f} ({verdict.verdict}; candidates: {candidates})")
+    judged = verdict.to_json(names)
+    judged["understood_goal"], judged["understood_goal_name"] = judged.pop("goal"), judged.pop("goal_name")
+    result = {**judged, "code": code.tolist(), "decoded_goal": decoded, "goal": goal if goal is not None else decoded}
+    result["acted"] = False
+    if not verdict.acts and not args.act_anyway:
+        print(verdict.describe(names))
+        return result
+    if not verdict.acts:
+        print(f"acting anyway (--act-anyway): the verdict was {verdict.verdict}")
     scored = goal if goal is not None else decoded
-    result = {"code": code.tolist(), "decoded_goal": decoded, "goal": scored}
     if scored is None:
         print("success: not measured: give the goal the sentence means with --goal")
         return result
@@ -122,26 +185,32 @@ def instruct(args: InstructArgs) -> dict:
         f"success: {int(success.sum())}/{args.episodes} episodes ({100 * rate:.1f} %) on goal {scored} "
         f"({names[scored]}, {how})"
     )
-    result.update(success=rate)
+    result.update(acted=True, goal=scored, success=rate)
     if args.video is not None:
-        first_key = jax.random.split(rng, args.episodes)[0]  # the key success_rate gave its first episode
-        episode = agent.rollout(args.sentence, first_key, scored, args.deterministic)
-        try:
-            from envs.render import RenderError, caption, write_video
-
-            frames = caption(agent.env.render(episode.qpos[: episode.length + 1]), args.sentence)
-            frames += [frames[-1]] * 5  # linger on the last frame
-            write_video(frames, args.video, fps=5.0 if agent.env_name.startswith("clevr") else 12.5)
-            outcome = "success" if episode.success else "no success"
-            print(f"video: {args.video} (the first episode, {episode.length} steps, {outcome})")
-            result["video"] = str(args.video)
-        except RenderError as error:
-            print(f"video: not written ({error})")
+        result.update(write_episode_video(agent, args, sentence, scored, jax.random.split(rng, args.episodes)[0]))
+    loading = f"load {load_s:.1f} s, " if load_s is not None else ""
     print(
-        f"time: load {loaded - start:.1f} s, translate {translated - loaded:.2f} s, "
+        f"time: {loading}translate {translated - begun:.2f} s, "
         f"{args.episodes} episodes {episodes_done - translated:.1f} s (compile included)"
     )
     return result
+
+
+def write_episode_video(agent: Agent, args: InstructArgs, sentence: str, goal: int, key) -> dict:
+    """Writes the episode of ``key`` (the first episode's key) to ``--video``; ``{"video": path}`` when written."""
+    episode = agent.rollout(sentence, key, goal, args.deterministic)
+    try:
+        from envs.render import RenderError, caption, write_video
+
+        frames = caption(agent.env.render(episode.qpos[: episode.length + 1]), sentence)
+        frames += [frames[-1]] * 5  # linger on the last frame
+        write_video(frames, args.video, fps=5.0 if agent.env_name.startswith("clevr") else 12.5)
+    except RenderError as error:
+        print(f"video: not written ({error})")
+        return {}
+    outcome = "success" if episode.success else "no success"
+    print(f"video: {args.video} (the first episode, {episode.length} steps, {outcome})")
+    return {"video": str(args.video)}
 
 
 def agent_command(cls, function, argv: list[str] | None, description: str | None):

@@ -16,8 +16,11 @@ the ``features -> codes`` function of its kind (kinds can be added with ``regist
 Then ``agent.encode(sentences)`` gives the features the encoding reads, ``agent.translate(sentences)`` the
 language codes the policy is conditioned on (the TL for TALAR), ``agent.nearest_goal(code)`` the goal whose
 training instructions share that code, ``agent.act(obs, code, rng)`` an action and ``agent.rollout(sentence, rng)``
-a whole episode. Runs whose record says they cannot read a new sentence (kind ``"none"``, e.g. One-hot) raise
-``AgentError`` with the record's reason.
+a whole episode. ``agent.understand(sentence)`` says whether the agent should act on it at all: a
+``talar_jax.confidence.Verdict`` (``"understood"`` and the goal, ``"ambiguous"`` and the likeliest goals, or ``"not
+understood"``) with a confidence calibrated by the run's ``confidence.json`` (``python -m experiments.calibrate``; a
+run without one uses ``Calibration.default()``). Runs whose record says they cannot read a new sentence (kind
+``"none"``, e.g. One-hot) raise ``AgentError`` with the record's reason.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from talar_jax.confidence import CONFIDENCE_FILE, Calibration, ConfidenceError, Understanding, Verdict
 from talar_jax.encodings import (
     ENCODING_FILE,
     POLICY_SOURCE,
@@ -179,8 +183,12 @@ class Agent:
         self._policy_params = jax.tree.map(
             lambda x: np.asarray(x)[seed], {k: v for k, v in stacked.items() if k != own}
         )
+        self._encoding_policy_params = {own: stacked[own]} if own is not None else None
         self._make_policy = make_inference_fn(networks)
         self._episode = jax.jit(self._episode_fn, static_argnames=("deterministic",))
+        self._batched_episodes: dict[bool, Any] = {}
+        self._understanding: Understanding | None = None
+        self._calibration: Calibration | None = None
 
     # --- language --------------------------------------------------------------------------------------------
     def _check_encoder(self) -> None:
@@ -253,6 +261,59 @@ class Agent:
         rows, counts = np.unique(self._train_codes[self._train_goals == goal].round(3), axis=0, return_counts=True)
         return rows[np.argmax(counts)]
 
+    # --- confidence ------------------------------------------------------------------------------------------
+    @property
+    def calibrated(self) -> bool:
+        """Whether the run has its own confidence calibration (``confidence.json`` in its method folder)."""
+        return (self.folder / CONFIDENCE_FILE).is_file()
+
+    @property
+    def calibration(self) -> Calibration:
+        """The run's confidence calibration, or ``Calibration.default()`` when it has none."""
+        if self._calibration is None:
+            try:
+                self._calibration = Calibration.read(self.folder) if self.calibrated else Calibration.default()
+            except ConfidenceError as error:
+                raise AgentError(str(error)) from None
+        return self._calibration
+
+    @calibration.setter
+    def calibration(self, calibration: Calibration) -> None:
+        self._calibration = calibration
+
+    @property
+    def understanding(self) -> Understanding:
+        """The confidence measures of the run's encoding (every seed's translator; built on first use)."""
+        if self._understanding is None:
+            rows = np.flatnonzero(self.cache.is_train)
+            try:
+                self._understanding = Understanding(
+                    self.encoding,
+                    self.folder,
+                    self.cache_features()[rows],
+                    self.cache.goal_ids[rows],
+                    int(self.cache.num_goals),
+                    policy_params=self._encoding_policy_params,
+                    embedding_dim=self.encoder.embedding_dim,
+                )
+            except (EncodingError, ConfidenceError) as error:
+                raise AgentError(str(error)) from None
+        return self._understanding
+
+    def understand(self, sentence: str) -> Verdict:
+        """The verdict on one sentence: act on it (``"understood"``, its goal), ask (``"ambiguous"``, the likeliest
+        goals) or refuse (``"not understood"``), with its calibrated confidence."""
+        return self.judge([sentence])[0]
+
+    def judge(self, sentences: Sequence[str], features: np.ndarray | None = None) -> list[Verdict]:
+        """The verdict on each sentence (``features``: their ``encode`` output, when already at hand)."""
+        sentences = list(sentences)
+        features = self.encode(sentences) if features is None else features
+        try:
+            return self.understanding.judge(sentences, features, self.seed, self.calibration)
+        except ConfidenceError as error:
+            raise AgentError(str(error)) from None
+
     # --- acting ----------------------------------------------------------------------------------------------
     def act(self, obs: jax.Array, code: jax.Array, rng: jax.Array, deterministic: bool = False) -> jax.Array:
         """An action for one observation (obs,) and code (code_size,) (pure JAX: jit / vmap it)."""
@@ -299,13 +360,15 @@ class Agent:
         """One episode per (code, goal) row, all vmapped in one call: ``(observations (E, T, obs), valid (E, T),
         success (E,))`` (``Episode``'s fields, batched; steps after an episode ended are padding)."""
         keys = jax.random.split(rng, len(goals))
+        if deterministic not in self._batched_episodes:  # one compiled program per mode, reused call after call
 
-        def episode(key, code, goal):  # the outputs returned, not the actions and physics positions
-            obs, _, _, valid, success = self._episode_fn(key, code, goal, deterministic)
-            return obs, valid, success
+            def episode(key, code, goal):  # the outputs returned, not the actions and physics positions
+                obs, _, _, valid, success = self._episode_fn(key, code, goal, deterministic)
+                return obs, valid, success
 
+            self._batched_episodes[deterministic] = jax.jit(jax.vmap(episode))
         obs, valid, success = jax.device_get(
-            jax.jit(jax.vmap(episode))(keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32))
+            self._batched_episodes[deterministic](keys, jnp.asarray(codes, jnp.float32), jnp.asarray(goals, jnp.int32))
         )
         return np.asarray(obs), np.asarray(valid), np.asarray(success)
 
