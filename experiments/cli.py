@@ -25,7 +25,7 @@ from typing import Any, NoReturn, TypeVar
 
 import tyro
 
-from experiments.help_text import PlainHelpFormatter, plain, plain_help
+from experiments.help_text import PlainHelpFormatter, plain, plain_help, program
 from experiments.parse_errors import parse_error_events, parse_error_message
 
 T = TypeVar("T")
@@ -58,15 +58,6 @@ def env_argument(argv: list[str] | None, default: str) -> str:
     parser.add_argument("--env", default=default)
     known, _ = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
     return known.env
-
-
-def program() -> str:
-    """The running command as its user typed it: ``python -m experiments.clevr``, or a console script's name
-    (``talar-clevr``)."""
-    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
-    if spec is not None and spec.name and spec.name != "__main__":
-        return f"python -m {spec.name.removesuffix('.__main__')}"
-    return Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "python"
 
 
 def parse_or_exit(

@@ -66,7 +66,7 @@ class ExperimentConfig:
     ``EmbeddingCache.sentence_features``). CLEVR, 5 seeds, 2M: TALAR's test-instruction success 84.0 -> 92.2 %."""
     env_options: dict[str, str] | None = None
     """Env options of the IFP's env (``envs.make(env, **options)``; default: the env recipe's. Kitchen:
-    ``posture_targets scripted``, see README "Kitchen reward"; ``--env-options posture_targets talar`` gives
+    ``posture_targets scripted``, see docs/kitchen-reward.md; ``--env-options posture_targets talar`` gives
     TALAR's original reward)."""
     talar: TalarConfig | None = None
     """Referential game and translator hyper-parameters (default: the env recipe's)."""

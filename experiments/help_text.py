@@ -11,8 +11,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import re
+import sys
 import textwrap
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 
@@ -88,3 +90,12 @@ def plain_help() -> Iterator[None]:
     finally:
         for name, original in originals.items():
             setattr(_docstrings, name, original)
+
+
+def program() -> str:
+    """The running command as its user typed it: ``python -m experiments.clevr``, or a console script's name
+    (``talar-clevr``)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name and spec.name != "__main__":
+        return f"python -m {spec.name.removesuffix('.__main__')}"
+    return Path(sys.argv[0]).name if sys.argv and sys.argv[0] else "python"

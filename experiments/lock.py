@@ -53,7 +53,7 @@ def _describe(folder: Path) -> str:
 
 
 def _command_line() -> str:
-    from experiments.cli import program
+    from experiments.help_text import program
 
     return " ".join([program(), *(shlex.quote(arg) for arg in sys.argv[1:])])
 

@@ -9,7 +9,7 @@ curves; the summary holds the same numbers per seed with the command and commit.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -20,9 +20,6 @@ from experiments.reports import ifp_result, learning_curve
 from talar_jax.checkpoint import write_json_atomic
 from talar_jax.provenance import provenance
 from talar_jax.report import LearningCurve, counted, percent_cell, plot_learning_curves
-
-if TYPE_CHECKING:
-    from experiments.study import StudyArgs
 
 matplotlib.use("Agg")  # figures are only written to files
 
@@ -146,8 +143,9 @@ def study_summary(
     }
 
 
-def write_outputs(args: StudyArgs, configs: dict[str, ExperimentConfig], finals: dict[str, dict[str, Any]]) -> str:
-    """``study.md``, ``study.png``, ``study-curves.png`` and ``summary.json`` in the study folder; returns the table."""
+def write_outputs(args, configs: dict[str, ExperimentConfig], finals: dict[str, dict[str, Any]]) -> str:
+    """``study.md``, ``study.png``, ``study-curves.png`` and ``summary.json`` in the study folder (``args``: the
+    study's ``StudyArgs``); returns the table."""
     first = next(iter(configs.values()))
     out = first.out.parent
     steps = max(summary["ifp_env_steps_per_seed"] for summary in finals.values())

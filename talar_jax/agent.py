@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from talar_jax.checkpoint import load_tree
 from talar_jax.confidence import CONFIDENCE_FILE, Calibration, ConfidenceError, Understanding, Verdict
 from talar_jax.encodings import (
     ENCODING_FILE,
@@ -77,13 +78,30 @@ class Episode:
     goal: int
 
 
+SHIPPED_AGENTS_DIR = Path(__file__).parent / "agents"
+"""Agents shipped with the package, one folder each (``experiments.ship`` writes them): a run folder cut down to one
+seed, its policy in ``POLICY_FILE`` instead of orbax checkpoints, and ``SHIPPED_RECORD`` saying where it came from."""
+POLICY_FILE = "policy.msgpack"
+SHIPPED_RECORD = "shipped.json"
+
+
+def shipped_agents() -> tuple[str, ...]:
+    """Names of the agents shipped with the package (``load(name)``)."""
+    if not SHIPPED_AGENTS_DIR.is_dir():
+        return ()
+    return tuple(sorted(p.name for p in SHIPPED_AGENTS_DIR.iterdir() if p.is_dir() and not p.name.startswith("_")))
+
+
 def find_method_folder(run_dir: str | Path, prefer: str | None = None) -> Path:
     """The method folder of a run: ``run_dir`` itself when it holds ``config.json``, else its only method subfolder
     holding one; with several (e.g. a comparison's output), the one named ``prefer`` (e.g. ``"talar"``), else an
-    ``AgentError`` listing them."""
+    ``AgentError`` listing them. A name of ``shipped_agents()`` that is no folder here names that shipped agent."""
     run_dir = Path(run_dir)
+    if not run_dir.is_dir() and str(run_dir) in shipped_agents():
+        run_dir = SHIPPED_AGENTS_DIR / str(run_dir)
     if not run_dir.is_dir():
-        raise AgentError(f"run folder {run_dir} does not exist")
+        shipped = ", ".join(shipped_agents()) or "none"
+        raise AgentError(f"run folder {run_dir} does not exist and no shipped agent has its name (shipped: {shipped})")
     if (run_dir / "config.json").is_file() and (run_dir / "ifp").exists():
         return run_dir
     candidates = sorted(p.parent for p in run_dir.glob("*/config.json") if (p.parent / "ifp").exists())
@@ -114,6 +132,8 @@ def read_encoding(folder: Path) -> EncodingArtifact:
 def _latest_policy_params(ppo_dir: Path) -> dict[str, Any]:
     import orbax.checkpoint as ocp
 
+    if (ppo_dir / POLICY_FILE).is_file():  # a shipped agent: the last checkpoint's parameters, one seed
+        return load_tree(ppo_dir / POLICY_FILE)
     if not (ppo_dir / "checkpoints").is_dir():
         raise AgentError(f"{ppo_dir} has no policy checkpoints")
     manager = ocp.CheckpointManager((ppo_dir / "checkpoints").absolute())
