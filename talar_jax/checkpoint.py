@@ -6,12 +6,15 @@ import dataclasses
 import json
 import os
 import tempfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import jax
 import orbax.checkpoint as ocp
 from flax import serialization
+
+_Record = TypeVar("_Record")
 
 
 def config_to_dict(config: Any) -> dict[str, Any]:
@@ -41,6 +44,36 @@ def write_json_atomic(path: str | Path, payload: Any) -> None:
         json.dump(payload, file, indent=2, sort_keys=True)
     os.chmod(temporary, 0o644)
     os.replace(temporary, path)
+
+
+def read_json_record(path: Path, parse: Callable[[Any], _Record], error: type[Exception]) -> _Record:
+    """``parse`` of the JSON in ``path``: ``error`` (naming the file) for text that is not JSON or for a record
+    that ``parse`` rejects with ``error``; ``FileNotFoundError`` where there is no file."""
+    text = path.read_text()
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as problem:
+        raise error(f"{path} is not valid JSON ({problem})") from None
+    try:
+        return parse(data)
+    except error as problem:
+        raise error(f"{path}: {problem}") from None
+
+
+def check_record_keys(
+    data: Any, record: type, required: set[str] | frozenset[str], error: type[Exception], what: str
+) -> None:
+    """``error`` unless ``data`` is a JSON object with only the fields of the dataclass ``record`` and all of
+    ``required``; ``what`` names the record (\"calibration\", \"encoding record\")."""
+    if not isinstance(data, Mapping):
+        article = "an" if what[:1] in "aeiou" else "a"
+        raise error(f"{article} {what} must be a JSON object, got {type(data).__name__}")
+    unknown = set(data) - {field.name for field in dataclasses.fields(record)}
+    missing = set(required) - set(data)
+    if unknown or missing:
+        problems = [f"unknown keys {', '.join(sorted(unknown))}"] if unknown else []
+        problems += [f"missing keys {', '.join(sorted(missing))}"] if missing else []
+        raise error(f"malformed {what}: {'; '.join(problems)}")
 
 
 class Checkpointer:

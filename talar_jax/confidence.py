@@ -26,7 +26,6 @@ knows a method: the encoding record's kind picks the scorer, and its ``continuou
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -36,8 +35,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from talar_jax.checkpoint import load_tree, write_json_atomic
-from talar_jax.encodings import FILE_SOURCE, TRANSLATOR, EncodingArtifact, EncodingError, make_encoding
+from talar_jax.checkpoint import check_record_keys, config_to_dict, read_json_record, write_json_atomic
+from talar_jax.encodings import (
+    TRANSLATOR,
+    EncodingArtifact,
+    EncodingError,
+    make_encoding,
+    stored_encoding_params,
+)
 from talar_jax.language import TOKEN_READOUT
 from talar_jax.task_language import Translator, decode_translation, split_task_language
 
@@ -243,35 +248,13 @@ class Calibration:
 
     # --- JSON ------------------------------------------------------------------------------------------------
     def to_json(self) -> dict[str, Any]:
-        return {
-            "temperature": self.temperature,
-            "ensemble": self.ensemble,
-            "features": list(self.features),
-            "mean": list(self.mean),
-            "scale": list(self.scale),
-            "coef": list(self.coef),
-            "intercept": self.intercept,
-            "act_threshold": self.act_threshold,
-            "familiar_threshold": self.familiar_threshold,
-            "max_candidates": self.max_candidates,
-            "candidate_floor": self.candidate_floor,
-            "single_seed": self.single_seed.to_json() if self.single_seed is not None else None,
-            "source": self.source,
-        }
+        """The ``confidence.json`` object: every field, tuples as lists, ``single_seed`` as its own object."""
+        return config_to_dict(self)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Calibration:
-        if not isinstance(data, Mapping):
-            raise ConfidenceError(f"a calibration must be a JSON object, got {type(data).__name__}")
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - fields
         required = {f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING}
-        required -= {"source", "single_seed"}
-        missing = required - set(data)
-        if unknown or missing:
-            what = [f"unknown keys {', '.join(sorted(unknown))}"] if unknown else []
-            what += [f"missing keys {', '.join(sorted(missing))}"] if missing else []
-            raise ConfidenceError(f"malformed calibration: {'; '.join(what)}")
+        check_record_keys(data, cls, required - {"source", "single_seed"}, ConfidenceError, "calibration")
         try:
             values = {
                 "temperature": float(data["temperature"]),
@@ -309,14 +292,7 @@ class Calibration:
             path = path / CONFIDENCE_FILE
         if not path.is_file():
             raise ConfidenceError(f"no calibration at {path}")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as error:
-            raise ConfidenceError(f"{path} is not valid JSON ({error})") from None
-        try:
-            return cls.from_json(data)
-        except ConfidenceError as error:
-            raise ConfidenceError(f"{path}: {error}") from None
+        return read_json_record(path, cls.from_json, ConfidenceError)
 
     @classmethod
     def default(cls) -> Calibration:
@@ -500,22 +476,7 @@ def stacked_encoding_params(
     artifact: EncodingArtifact, method_folder: str | Path, policy_params: Mapping[str, Any] | None = None
 ) -> Any:
     """The encoding's parameters of every seed (leading axis), as the record says where they lie."""
-    if not artifact.readable:
-        raise EncodingError(artifact.unreadable_reason)
-    source = artifact.params
-    if source.source == FILE_SOURCE:
-        path = Path(method_folder).parent / source.path
-        if not path.is_file():
-            raise EncodingError(f"the encoding's parameters {path} are missing")
-        tree, where = load_tree(path), str(path)
-    else:
-        if policy_params is None:
-            raise EncodingError("the encoding's parameters are in the policy checkpoint, and none was given")
-        tree, where = policy_params, "the policy checkpoint"
-    if source.entry is not None:
-        if not isinstance(tree, Mapping) or source.entry not in tree:
-            raise EncodingError(f"{where} has no entry {source.entry!r} (the encoding's parameters)")
-        tree = tree[source.entry]
+    tree, _ = stored_encoding_params(artifact, method_folder, policy_params)
     return jax.tree.map(np.asarray, tree)
 
 

@@ -30,7 +30,6 @@ sentence, and why (e.g. One-hot: a code per training instruction).
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -39,7 +38,7 @@ import jax
 import numpy as np
 
 from talar_jax.baselines import AlignedEncodingLayer, NLEncodingLayer
-from talar_jax.checkpoint import load_tree, write_json_atomic
+from talar_jax.checkpoint import check_record_keys, load_tree, read_json_record, write_json_atomic
 from talar_jax.language import TOKEN_READOUT, TRANSLATOR_READOUTS
 from talar_jax.report import counted
 from talar_jax.talar import TalarConfig, make_translate
@@ -256,14 +255,7 @@ class EncodingArtifact:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> EncodingArtifact:
         """The artifact of an ``encoding.json`` object; ``EncodingError`` for a malformed one."""
-        if not isinstance(data, Mapping):
-            raise EncodingError(f"an encoding record must be a JSON object, got {type(data).__name__}")
-        fields = {field.name for field in dataclasses.fields(cls)}
-        unknown, missing = set(data) - fields, {"kind", "readout", "code_size"} - set(data)
-        if unknown:
-            raise EncodingError(f"malformed encoding record: unknown keys {', '.join(sorted(unknown))}")
-        if missing:
-            raise EncodingError(f"malformed encoding record: missing keys {', '.join(sorted(missing))}")
+        check_record_keys(data, cls, {"kind", "readout", "code_size"}, EncodingError, "encoding record")
         spec, params = data.get("spec"), data.get("params")
         try:
             spec = TaskLanguageSpec(**spec) if spec is not None else None
@@ -299,16 +291,7 @@ class EncodingArtifact:
     def read(cls, method_folder: str | Path) -> EncodingArtifact:
         """The artifact in ``<method_folder>/encoding.json`` (``FileNotFoundError`` if there is none,
         ``EncodingError`` if it is malformed)."""
-        path = Path(method_folder) / ENCODING_FILE
-        text = path.read_text()
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as error:
-            raise EncodingError(f"{path} is not valid JSON ({error})") from None
-        try:
-            return cls.from_json(data)
-        except EncodingError as error:
-            raise EncodingError(f"{path}: {error}") from None
+        return read_json_record(Path(method_folder) / ENCODING_FILE, cls.from_json, EncodingError)
 
 
 def has_encoding(method_folder: str | Path) -> bool:
@@ -358,6 +341,30 @@ register_encoding_kind(ALIGNED_ENCODING_LAYER, _build_aligned_encoding_layer)
 
 
 # --- loading -------------------------------------------------------------------------------------------------
+def stored_encoding_params(
+    artifact: EncodingArtifact, method_folder: str | Path, policy_params: Mapping[str, Any] | None = None
+) -> tuple[Any, str]:
+    """The encoding's stored (seed-stacked) parameters, from the file or policy entry the artifact names, and
+    where they came from (a path, or ``"the policy checkpoint"``)."""
+    if not artifact.readable:
+        raise EncodingError(artifact.unreadable_reason)
+    source = artifact.params
+    if source.source == FILE_SOURCE:
+        path = Path(method_folder).parent / source.path
+        if not path.is_file():
+            raise EncodingError(f"the encoding's parameters {path} are missing")
+        tree, where = load_tree(path), str(path)
+    else:
+        if policy_params is None:
+            raise EncodingError("the encoding's parameters are in the policy checkpoint, and none was given")
+        tree, where = policy_params, "the policy checkpoint"
+    if source.entry is not None:
+        if not isinstance(tree, Mapping) or source.entry not in tree:
+            raise EncodingError(f"{where} has no entry {source.entry!r} (the encoding's parameters)")
+        tree = tree[source.entry]
+    return tree, where
+
+
 def encoding_params(
     artifact: EncodingArtifact, method_folder: str | Path, seed: int, policy_params: Mapping[str, Any] | None = None
 ) -> Any:
@@ -370,23 +377,7 @@ def encoding_params(
         policy_params: the policy checkpoint's params (seed-stacked, as stored), needed when the artifact's params
             come from the policy.
     """
-    if not artifact.readable:
-        raise EncodingError(artifact.unreadable_reason)
-    source = artifact.params
-    if source.source == FILE_SOURCE:
-        path = Path(method_folder).parent / source.path
-        if not path.is_file():
-            raise EncodingError(f"the encoding's parameters {path} are missing")
-        tree = load_tree(path)
-        where = str(path)
-    else:
-        if policy_params is None:
-            raise EncodingError("the encoding's parameters are in the policy checkpoint, and none was given")
-        tree, where = policy_params, "the policy checkpoint"
-    if source.entry is not None:
-        if not isinstance(tree, Mapping) or source.entry not in tree:
-            raise EncodingError(f"{where} has no entry {source.entry!r} (the encoding's parameters)")
-        tree = tree[source.entry]
+    tree, where = stored_encoding_params(artifact, method_folder, policy_params)
     leaves = jax.tree.leaves(tree)
     seeds = min((np.shape(leaf)[0] if np.ndim(leaf) else 0) for leaf in leaves) if leaves else 0
     if not 0 <= seed < seeds:
