@@ -17,6 +17,7 @@ from talar_jax.checkpoint import save_tree
 from talar_jax.encodings import ENCODING_FILE, EncodingArtifact, EncodingError, ParamsSource, register_encoding_kind
 from talar_jax.language import TOKEN_READOUT, load_user_instructions, readout_features
 from talar_jax.task_language import TaskLanguageSpec
+from tests.helpers import one_line_error as _error
 
 
 def talar_encoding(config: dict) -> EncodingArtifact:
@@ -208,15 +209,6 @@ def test_generalize_on_the_test_patterns_reproduces_the_tables_agreement(talar_r
         assert row["test"]["tl_agreement"] == pytest.approx(expected)
         assert all(0.0 <= row[name]["success"] <= 1.0 for name in ("train", "test", "yours"))
     assert "mean ± std" in capsys.readouterr().out
-
-
-def _error(capsys, main, argv) -> str:
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
 
 
 def test_bad_input_gets_one_line(talar_run, tmp_path, capsys):

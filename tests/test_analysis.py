@@ -9,15 +9,7 @@ import pytest
 
 from experiments import tsne
 from experiments.reports import trained_codes
-
-
-def _error(capsys, main, argv) -> str:
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
+from tests.helpers import one_line_error as _error
 
 
 def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path, capsys, monkeypatch):

@@ -34,6 +34,7 @@ from talar_jax.encodings import (
 )
 from talar_jax.talar import translator_nll
 from talar_jax.task_language import TaskLanguageSpec, Translator
+from tests.helpers import one_line_error as _error
 
 NAMES = ["microwave", "kettle", "light switch", "top burner", "bottom burner"]
 
@@ -310,15 +311,6 @@ def test_instruct_reads_sentences_from_stdin_until_its_end(run_copy, tmp_path, c
     assert captured.out.count("run: ") == 1 and captured.out.count("sentence: ") == 2
     assert 'not understood: "zzz qqq the the"' in captured.out
     assert [r["sentence"] for r in json.loads(out.read_text())] == [r["sentence"] for r in results]
-
-
-def _error(capsys, main, argv) -> str:
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
 
 
 def test_bad_input_of_the_new_options_gets_one_line(run_copy, tmp_path, capsys, monkeypatch):
