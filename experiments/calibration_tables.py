@@ -23,6 +23,20 @@ def pct(value) -> str:
     return "–" if value is None else f"{100 * value:.1f}"
 
 
+def _acted_cells(result: dict, part: str) -> list[str]:
+    """The shares acted on each set (of ``part``; train's of the calibration half), dev's right among acted."""
+    held, train = result[part], result[CALIBRATION]["train"]
+    return [
+        pct(train["acted"]),
+        pct(held["test"]["acted"]),
+        pct(held["dev"]["acted"]),
+        pct(held["dev"]["accuracy_acted"]),
+        pct(1.0 - held["no_goal"]["acted"]),
+        pct(1.0 - held["near_miss"]["acted"]) if "near_miss" in held else "–",
+        pct(1.0 - held["ambiguous"]["acted"]),
+    ]
+
+
 def table(results: dict[str, dict], met: dict[str, bool], part: str = HELD_OUT) -> str:
     """Markdown: one row per measure, the held-out figures the targets name (``met``: whether its threshold kept the
     targets on the calibration half)."""
@@ -32,16 +46,9 @@ def table(results: dict[str, dict], met: dict[str, bool], part: str = HELD_OUT) 
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for name, result in results.items():
-        held, train = result[part], result[CALIBRATION]["train"]
         cells = [
-            pct(train["acted"]),
-            pct(held["test"]["acted"]),
-            pct(held["dev"]["acted"]),
-            pct(held["dev"]["accuracy_acted"]),
-            pct(1.0 - held["no_goal"]["acted"]),
-            pct(1.0 - held["near_miss"]["acted"]) if "near_miss" in held else "–",
-            pct(1.0 - held["ambiguous"]["acted"]),
-            pct(held["ambiguous"].get("ambiguous")),
+            *_acted_cells(result, part),
+            pct(result[part]["ambiguous"].get("ambiguous")),
             {True: "yes", False: "no (closest threshold)", None: "–"}[met.get(name)],
         ]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
@@ -83,17 +90,8 @@ def trade_off_table(measured: Measured, sentences: SentenceSet, calibration: Cal
     ]
     for threshold in sorted({*TRADE_OFF, round(calibration.act_threshold, 3)}):
         result = evaluate(measured, sentences, dataclasses.replace(calibration, act_threshold=threshold))
-        held, train = result[HELD_OUT], result[CALIBRATION]["train"]
         chosen = " (chosen)" if threshold == round(calibration.act_threshold, 3) else ""
-        cells = [
-            pct(train["acted"]),
-            pct(held["test"]["acted"]),
-            pct(held["dev"]["acted"]),
-            pct(held["dev"]["accuracy_acted"]),
-            pct(1.0 - held["no_goal"]["acted"]),
-            pct(1.0 - held["near_miss"]["acted"]) if "near_miss" in held else "–",
-            pct(1.0 - held["ambiguous"]["acted"]),
-        ]
+        cells = _acted_cells(result, HELD_OUT)
         lines.append(f"| {threshold:g}{chosen} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
