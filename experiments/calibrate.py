@@ -24,7 +24,7 @@ import numpy as np
 import tyro
 
 from experiments.calibration_tables import report_text
-from experiments.cli import output_path_problem
+from experiments.cli import output_path_problem, write_output
 from experiments.instruct import agent_command
 from experiments.recipes import get_recipe
 from talar_jax import runtime
@@ -265,12 +265,8 @@ def calibrate(args: CalibrateArgs) -> dict:
     print(text)
     print(f"targets met (held-out): {json.dumps(chosen.source['meets_targets'])}")
     print(f"calibration: {out}")
-    if args.report is not None:
-        args.report.parent.mkdir(parents=True, exist_ok=True)
-        args.report.write_text(f"# Confidence calibration of {folder}\n\ncommit {chosen.source['commit']}\n\n{text}")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(record, indent=2))
+    write_output(args.report, f"# Confidence calibration of {folder}\n\ncommit {chosen.source['commit']}\n\n{text}")
+    write_output(args.json, json.dumps(record, indent=2))
     return record
 
 

@@ -5,7 +5,8 @@
   and whose help pages read as plain text (no double-backtick markup, no hard line breaks from the docstrings).
 - ``ArgumentParser``: the same for the commands that parse with argparse.
 - ``check_output_path``: an output path a command will write (``--out``, ``--video``, ``--json``) checked before any
-  work: a file where a folder goes (or the reverse), a path under a file, a folder that cannot be written.
+  work: a file where a folder goes (or the reverse), a path under a file, a folder that cannot be written;
+  ``write_output`` writes one once the work is done.
 - ``hold_or_exit``: the run folder's lock (``experiments.lock``) for the command's life; a folder another command
   holds stops this one with one line naming that command.
 
@@ -104,6 +105,13 @@ class ArgumentParser(argparse.ArgumentParser):
         fail(f"{message}{hint}")
 
 
+def module_parser(module: str, description: str | None) -> ArgumentParser:
+    """The ``ArgumentParser`` of ``python -m <module>``, whose help keeps ``description`` (its docstring) as written."""
+    return ArgumentParser(
+        prog=f"python -m {module}", description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+
+
 # --- output paths ----------------------------------------------------------------------------------------------
 
 
@@ -150,6 +158,15 @@ def check_outputs_or_exit(*outputs: tuple[str | Path | None, str, str]) -> None:
     exits with status 2, before any work."""
     for path, option, kind in outputs:
         valid_or_exit(check_output_path, path, option, kind)
+
+
+def write_output(path: str | Path | None, text: str) -> None:
+    """Writes ``text`` to ``path`` (an output option), making the folders above it; None (left out) writes nothing."""
+    if path is None:
+        return
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
 
 
 # --- run-folder lock -------------------------------------------------------------------------------------------

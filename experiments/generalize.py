@@ -28,7 +28,7 @@ import jax
 import numpy as np
 import tyro
 
-from experiments.cli import output_path_problem
+from experiments.cli import output_path_problem, write_output
 from experiments.instruct import agent_command
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
@@ -246,9 +246,7 @@ def generalize(args: GeneralizeArgs) -> dict:
         "calibrated": bool(agent.calibrated),
         "yours": yours,
     }
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+    write_output(args.json, json.dumps(result, indent=2))
     return result
 
 

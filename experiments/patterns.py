@@ -14,6 +14,7 @@ from typing import Annotated
 
 import tyro
 
+from experiments.cli import write_output
 from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
 from experiments.config import ExperimentConfig, default_config
 from experiments.methods import method_label
@@ -81,9 +82,7 @@ def patterns(args: PatternsArgs) -> str:
         lines.append(f"| {label} | " + " | ".join(cells.get((method, k), "-") for k in columns) + f" | {paper} |")
     lines += ["", '"-": not run in this folder yet with these settings.']
     table = "\n".join(lines) + "\n"
-    out = args.experiment.out
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "table3.md").write_text(table)
+    write_output(args.experiment.out / "table3.md", table)
     print(table)
     return table
 

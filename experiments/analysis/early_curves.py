@@ -14,14 +14,13 @@ and test instructions (mean +- std over seeds, as the run reports draw them).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import ArgumentParser, check_outputs_or_exit
+from experiments.cli import check_outputs_or_exit, module_parser
 from talar_jax.report import LearningCurve, plot_learning_curves
 
 
@@ -74,11 +73,7 @@ def table(curves: dict[str, dict], split: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(
-        prog="python -m experiments.analysis.early_curves",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = module_parser("experiments.analysis.early_curves", __doc__)
     parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
     parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
     parser.add_argument(

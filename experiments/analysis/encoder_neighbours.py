@@ -15,14 +15,13 @@ results/unseen-phrasings.md gives the commands used for all-MiniLM-L6-v2 and all
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import ArgumentParser
+from experiments.cli import module_parser
 
 DATA = Path(__file__).resolve().parents[2] / "talar_jax" / "language" / "data"
 
@@ -46,11 +45,7 @@ def classify(train: np.ndarray, train_goals: np.ndarray, held_out: np.ndarray) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(
-        prog="python -m experiments.analysis.encoder_neighbours",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = module_parser("experiments.analysis.encoder_neighbours", __doc__)
     parser.add_argument("encoders", nargs="+", metavar="ENCODER_FOLDER", help="a sentence-transformers model folder")
     folders = parser.parse_args(argv).encoders
     try:

@@ -13,7 +13,6 @@ weights, and the codes the policy reads (the encoding layer on the fine-tuned em
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from experiments.cli import ArgumentParser
+from experiments.cli import module_parser
 from experiments.tsne import goal_grouping as tsne_goal_grouping
 from talar_jax import runtime
 from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder
@@ -86,11 +85,7 @@ def drift(run_dir: str | Path, seed: int = 0) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     runtime.start()
-    parser = ArgumentParser(
-        prog="python -m experiments.analysis.finetuned_bert_drift",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = module_parser("experiments.analysis.finetuned_bert_drift", __doc__)
     parser.add_argument("run_dir", type=Path, help="a finished finetuned-bert-* run (a run root or its method folder)")
     parser.add_argument("--seed", type=int, default=0, help="which of the run's seeds to measure (default: 0)")
     args = parser.parse_args(argv)

@@ -13,7 +13,6 @@ translator or an encoding layer (TALAR, Handcrafted, GLA, BERT-*; see ``talar_ja
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ import jax
 import numpy as np
 
 from envs.kitchen.tasks import BONUS_THRESH, task_distances
-from experiments.cli import ArgumentParser, check_outputs_or_exit
+from experiments.cli import check_outputs_or_exit, module_parser
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
@@ -68,11 +67,7 @@ def seed_report(run_dir: str, seed: int, episodes: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     runtime.start()
-    parser = ArgumentParser(
-        prog="python -m experiments.analysis.side_tasks",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = module_parser("experiments.analysis.side_tasks", __doc__)
     parser.add_argument("run_dir", help="a finished kitchen run folder (or its method folder)")
     parser.add_argument("--seeds", type=int, nargs="+", help="seeds to probe (default: all of the run's)")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per sub-task and seed")

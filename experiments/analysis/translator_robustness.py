@@ -17,7 +17,6 @@ success a swapped-in translator would give, valid when it keeps the goals' train
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -27,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from experiments.cli import ArgumentParser, check_outputs_or_exit
+from experiments.cli import ArgumentParser, check_outputs_or_exit, module_parser
 from experiments.config import default_config, resolve
 from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys, translator_readout
@@ -76,11 +75,7 @@ def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.nda
 
 
 def _parser() -> ArgumentParser:
-    parser = ArgumentParser(
-        prog="python -m experiments.analysis.translator_robustness",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = module_parser("experiments.analysis.translator_robustness", __doc__)
     parser.add_argument("run", type=Path, help="a finished experiment folder (RUN above), e.g. runs/kitchen")
     parser.add_argument("--env", required=True, choices=["clevr", "kitchen"], help="the env of RUN")
     parser.add_argument("--seeds", type=int, default=5, help="translator seeds, the first of RUN's (default: 5)")
