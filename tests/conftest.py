@@ -40,6 +40,21 @@ def kitchen_run(tmp_path_factory):
     return out, printed.getvalue()
 
 
+@pytest.fixture
+def point_env_registered(monkeypatch):
+    """The point env of tests/point_env.py registered as a third env package would be, removed afterwards."""
+    import envs
+    from envs import registry
+    from tests import point_env
+
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    monkeypatch.setattr(registry, "_INSTRUCTION_FORMATS", dict(registry._INSTRUCTION_FORMATS))
+    point_env.register()
+    yield envs
+    monkeypatch.undo()
+    assert "point" not in envs.registered_names() and "point" not in envs.instruction_envs()
+
+
 def pytest_addoption(parser):
     parser.addoption("--all", action="store_true", default=False, help="also run tests marked slow")
 

@@ -52,6 +52,7 @@ class PointEnv(Env):
     """
 
     config_class = PointConfig
+    xml_path = Path(__file__)  # no MJCF: the file defining the env is what results made on it depend on
 
     def __init__(self, config: PointConfig | None = None, physics: str = "none"):
         self.config = config if config is not None else PointConfig()

@@ -508,21 +508,6 @@ def test_default_encoder_kitchen_cache_separates_goals(tmp_path):
     assert cache.vocab_size == len(set(cache.prefix_next_token.tolist())) > 50
 
 
-@pytest.fixture
-def point_env_registered(monkeypatch):
-    """The point env of tests/point_env.py registered as a third env package would be, removed afterwards."""
-    import envs
-    from envs import registry
-    from tests import point_env
-
-    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
-    monkeypatch.setattr(registry, "_INSTRUCTION_FORMATS", dict(registry._INSTRUCTION_FORMATS))
-    point_env.register()
-    yield envs
-    monkeypatch.undo()
-    assert "point" not in envs.registered_names() and "point" not in envs.instruction_envs()
-
-
 def test_a_third_env_package_supplies_its_own_instruction_format(point_env_registered, tmp_path):
     """The point env says how its instructions are read from its own module (no talar_jax import, no talar_jax
     edit): the language layer finds them by env name, for the env and its variant."""
