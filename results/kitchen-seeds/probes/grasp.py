@@ -1,3 +1,5 @@
+"""The microwave's grasp posture: the scripted controller's noise-free episode, fingertip-handle distance and the
+posture at each step until the door first moves (step 100 = fingers behind the closed door's handle)."""
 import numpy as np, jax, jax.numpy as jnp, mujoco
 import envs
 from envs.kitchen import tasks

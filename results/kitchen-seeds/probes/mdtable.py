@@ -1,3 +1,4 @@
+"""Markdown table of a probe run's evaluations: python mdtable.py <name> ... (runs/kitchen-seeds/<name>)."""
 import json, sys
 for name in sys.argv[1:]:
     rows = [json.loads(l) for l in open(f'runs/kitchen-seeds/{name}/metrics.jsonl')]

@@ -1,3 +1,5 @@
+"""Per-seed microwave successes of a run's evaluations (bounds, see perseed.py): python mixedseed.py
+<metrics.jsonl> <eval episodes per seed>; the base seed is read from the config.json beside it."""
 import sys, json, numpy as np
 sys.path.insert(0, str(__import__('pathlib').Path(__file__).parent))
 import perseed

@@ -1,6 +1,9 @@
-"""Microwave-only goal-given PPO probe: every episode's goal is the microwave, one-hot conditioning.
+"""Goal-given PPO probe on the kitchen (one-hot goal, the IFP's PPO settings): the microwave alone (--goal 0) or all
+six sub-tasks (--goal -1), with the reward variants of the README (--mw-target grasp, --still clean).
 
-python mw.py --name base [--still clean] [--normalize-obs] [--num-envs N] [--rollout L] [--ent C] [--log-std X]
+From the repository root: PYTHONPATH=. python results/kitchen-seeds/probes/mw.py --name base --steps 700000 --seeds 4
+[--goal -1] [--mw-target grasp] [--still clean] [--normalize-obs] [--num-envs N] [--rollout L] [--ent C] [--log-std X]
+Writes runs/kitchen-seeds/<name>/ (metrics.jsonl, checkpoints).
 """
 import argparse, dataclasses, json, os, time
 from pathlib import Path

@@ -1,3 +1,4 @@
+"""The per-seed microwave table of the recorded runs (after perseed.py)."""
 import json, numpy as np
 d = json.load(open('runs/kitchen-seeds/perseed.json'))
 rows = []
