@@ -84,7 +84,6 @@ def ship(args: ShipArgs) -> Path:
         save_tree(target / encoding.params.path, jax.tree.map(lambda x: np.asarray(x)[order], params))
     if (folder / CONFIDENCE_FILE).is_file():
         shutil.copy(folder / CONFIDENCE_FILE, method / CONFIDENCE_FILE)
-    provenance = json.loads((folder / "summary.json").read_text())
     write_json_atomic(
         method / SHIPPED_RECORD,
         {
@@ -92,8 +91,8 @@ def ship(args: ShipArgs) -> Path:
             "seed": seed,
             "env": summary["env"],
             "method": summary["method"],
-            "command": provenance.get("command"),
-            "commit": provenance.get("commit"),
+            "command": summary.get("command"),
+            "commit": summary.get("commit"),
             "ifp_env_steps_per_seed": summary["ifp_env_steps_per_seed"],
             "final_success": {split: rates[seed] for split, rates in summary["final_success"].items()},
         },
