@@ -85,7 +85,13 @@ class ExperimentConfig:
 KEY_EXCLUDED_FIELDS: tuple[str, ...] = ("out", "reuse_stages", "progress", "deployment_strip", "tensorboard")
 """ExperimentConfig fields no result depends on: left out of the IFP stage's key (which hashes all others)."""
 
-QUICK_PPO = {"num_envs": 16, "rollout_length": 32, "updates_per_chunk": 5, "eval_episodes": 32}
+QUICK_PPO = {
+    "num_envs": 16,
+    "rollout_length": 32,
+    "updates_per_chunk": 5,
+    "eval_episodes": 32,
+    "final_eval_episodes": 32,
+}
 """The ``--quick`` PPO budget of every policy (the oracle's and the IFP's), besides its env steps."""
 QUICK_PPO_ENV_STEPS = 10_240
 """The ``--quick`` PPO env steps per seed (an explicit budget, one other than the recipe's, is kept)."""

@@ -94,7 +94,11 @@ class PPOConfig:
     eval_every_chunks: int = 1
     """Evaluate every this many chunks (and after the last one)."""
     eval_episodes: int = 160
-    """Parallel evaluation episodes per seed and split."""
+    """Parallel evaluation episodes per seed and split (the learning curve's evaluations)."""
+    final_eval_episodes: int = 0
+    """Episodes per seed and split of the evaluation after the last chunk, the one a run reports (0: as
+    ``eval_episodes``). A dense final evaluation with sparse curve evaluations keeps evaluation a small part of a
+    run; evaluation keys never touch training's, so the trained parameters do not depend on either."""
     eval_deterministic: bool = True
     """Evaluate the policy's mode (True) or samples (False)."""
 
@@ -113,6 +117,8 @@ class PPOConfig:
         for name in positive:
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.final_eval_episodes < 0:
+            raise ValueError(f"PPOConfig.final_eval_episodes must be >= 0, got {self.final_eval_episodes}")
         if (self.num_envs * self.rollout_length) % self.minibatch_size:
             raise ValueError(
                 f"num_envs * rollout_length ({self.num_envs * self.rollout_length}) must be a multiple of "
@@ -309,8 +315,11 @@ class _Learner:
         """``updates_per_chunk`` updates under ``lax.scan``; metrics have a leading (updates_per_chunk,) axis."""
         return jax.lax.scan(self.update, state, None, length=self.config.updates_per_chunk)
 
-    def evaluate(self, params: dict[str, Any], rng: jax.Array, split: str = "train") -> dict[str, jax.Array]:
-        """``eval_episodes`` fresh episodes with instructions from ``split`` (see ``evaluate_episodes``)."""
+    def evaluate(
+        self, params: dict[str, Any], rng: jax.Array, split: str = "train", num_episodes: int | None = None
+    ) -> dict[str, jax.Array]:
+        """``num_episodes`` (default ``eval_episodes``) fresh episodes with instructions from ``split`` (see
+        ``evaluate_episodes``)."""
         policy = self.make_policy(params, self.config.eval_deterministic)
         conditioner_params = self.conditioner.freeze(params["conditioner"])
 
@@ -318,7 +327,8 @@ class _Learner:
             cond = self.conditioner.apply_batch(conditioner_params, instruction)
             return policy(obs, cond, rng_act)
 
-        return evaluate_episodes(self.eval_envs[check_split(split)], act, rng, self.config.eval_episodes)
+        episodes = self.config.eval_episodes if num_episodes is None else num_episodes
+        return evaluate_episodes(self.eval_envs[check_split(split)], act, rng, episodes)
 
     def train(self, rng: jax.Array) -> tuple[TrainingState, dict[str, jax.Array]]:
         """The whole run in one program (no host work): metrics (num_chunks, updates_per_chunk)."""
@@ -367,10 +377,24 @@ def summarize_eval(record: dict[str, np.ndarray], num_goals: int) -> dict[str, A
         "success": float(success.sum() / max(valid.sum(), 1)),
         "success_per_seed": (success.sum(1) / np.maximum(valid.sum(1), 1)).tolist(),
         "success_per_goal": [float(v) if n else None for v, n in zip(per_goal, counts, strict=True)],
+        "success_per_seed_goal": _success_per_seed_goal(success, goal, valid, num_goals),
         "episode_return": float(np.mean(record["episode_return"])),
         "episode_return_per_seed": np.mean(np.asarray(record["episode_return"], np.float64), axis=1).tolist(),
         "episode_length": float(np.mean(record["episode_length"])),
     }
+
+
+def _success_per_seed_goal(
+    success: np.ndarray, goal: np.ndarray, valid: np.ndarray, num_goals: int
+) -> list[list[float | None]]:
+    """(num_seeds, num_goals) success of each seed on each goal (None where a seed had no such episode): the
+    table that shows one seed failing one goal, which the per-seed and per-goal margins average away."""
+    table = []
+    for seed_success, seed_goal, seed_valid in zip(success, goal, valid, strict=True):
+        counts = np.bincount(seed_goal[seed_valid], minlength=num_goals)
+        sums = np.bincount(seed_goal[seed_valid], weights=seed_success[seed_valid], minlength=num_goals)
+        table.append([float(v / n) if n else None for v, n in zip(sums, counts, strict=True)])
+    return table
 
 
 def _chunk_metrics(metrics: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -427,20 +451,30 @@ class RunFiles:
 
 def make_evaluator(
     trainer: Trainer, config: PPOConfig, splits: Sequence[str], num_goals: int, params: dict[str, Any]
-) -> Callable[[dict[str, Any], int], dict[str, dict[str, Any]]]:
-    """``evaluate(seed_params, index) -> split -> summarize_eval(...)``: fresh episodes per split, keys from
-    ``config.seed`` and ``index`` (so a resumed run evaluates exactly as an uninterrupted one). The programs are
-    compiled here for seed-stacked ``params`` of this structure, so an evaluation's wall-clock is its episodes."""
+) -> Callable[..., dict[str, dict[str, Any]]]:
+    """``evaluate(seed_params, index, final=False) -> split -> summarize_eval(...)``: fresh episodes per split
+    (``eval_episodes``, or ``final_eval_episodes`` when ``final``), keys from ``config.seed`` and ``index`` (so a
+    resumed run evaluates exactly as an uninterrupted one). The curve's programs are compiled here for seed-stacked
+    ``params`` of this structure, so an evaluation's wall-clock is its episodes; the final one's on first use."""
     eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
     keys = jax.random.split(eval_root, config.num_seeds)
-    eval_fns = {
-        split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split))).lower(params, keys).compile()
-        for split in splits
-    }
 
-    def evaluate(params: dict[str, Any], index: int) -> dict[str, dict[str, Any]]:
+    def compile_programs(num_episodes: int) -> dict[str, Any]:
+        return {
+            split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split, num_episodes=num_episodes)))
+            .lower(params, keys)
+            .compile()
+            for split in splits
+        }
+
+    programs = {config.eval_episodes: compile_programs(config.eval_episodes)}
+
+    def evaluate(params: dict[str, Any], index: int, final: bool = False) -> dict[str, dict[str, Any]]:
+        episodes = (config.final_eval_episodes or config.eval_episodes) if final else config.eval_episodes
+        if episodes not in programs:
+            programs[episodes] = compile_programs(episodes)
         keys = jax.random.split(jax.random.fold_in(eval_root, index), config.num_seeds)
-        records = {split: jax.device_get(fn(params, keys)) for split, fn in eval_fns.items()}
+        records = {split: jax.device_get(fn(params, keys)) for split, fn in programs[episodes].items()}
         return {split: summarize_eval(record, num_goals) for split, record in records.items()}
 
     return evaluate
@@ -450,7 +484,7 @@ class _Compiled(NamedTuple):
     """A run's compiled programs: one chunk of training of every seed, the evaluator, and the seconds both took."""
 
     chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, Any]]]
-    evaluate: Callable[[dict[str, Any], int], dict[str, dict[str, Any]]]
+    evaluate: Callable[..., dict[str, dict[str, Any]]]
     seconds: float
 
 
@@ -494,12 +528,12 @@ def _train_chunk(
 
 
 def _evaluate_chunk(
-    evaluate: Callable, params: dict[str, Any], chunk_index: int, row: dict[str, Any]
+    evaluate: Callable, params: dict[str, Any], chunk_index: int, row: dict[str, Any], final: bool = False
 ) -> dict[str, dict[str, Any]]:
     """Evaluates the seeds' ``params`` after chunk ``chunk_index``; adds the seconds it took and every split's
     summary to the chunk's ``row``."""
     eval_start = time.perf_counter()
-    final_eval = evaluate(params, chunk_index)
+    final_eval = evaluate(params, chunk_index, final)
     row["eval/seconds"] = time.perf_counter() - eval_start
     for split, summary in final_eval.items():
         row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
@@ -552,7 +586,7 @@ def _train_chunks(
             row["train/compile_s"] = compiled.seconds
         last = chunk_index == sizes.num_chunks - 1
         if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
-            final_eval = _evaluate_chunk(compiled.evaluate, state.params, chunk_index, row)
+            final_eval = _evaluate_chunk(compiled.evaluate, state.params, chunk_index, row, final=last)
             stop = _reaches_target(done, target_success, final_eval, row) and stop_at_target
         if run_files is not None:
             run_files.save(chunk_index + 1, state, wall_s, done["target_reached"])
@@ -609,7 +643,7 @@ def run_ppo(
         state, done, compiled, config, eval_splits, run_files, log, target_success, stop_at_target, progress
     )
     if not final_eval and eval_splits:
-        final_eval = compiled.evaluate(state.params, derive(config).num_chunks)
+        final_eval = compiled.evaluate(state.params, derive(config).num_chunks, final=True)
     if run_files is not None:
         run_files.close()
     log.close()

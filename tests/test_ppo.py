@@ -218,3 +218,54 @@ def test_scripted_kitchen_collector_covers_all_six_subtasks(tmp_path):
     distance = jax.vmap(tasks.task_distances)(jnp.asarray(dataset.final_states))
     final_distance = np.asarray(distance)[np.arange(len(dataset)), dataset.goal_ids]
     assert np.all(final_distance < tasks.BONUS_THRESH)  # kept episodes end with their sub-task solved
+
+
+def test_evaluation_schedule_leaves_training_bit_identical(discrete_run):
+    """Evaluation draws its own keys: a run evaluated rarely, on other episode counts, with a dense final
+    evaluation, trains exactly the same parameters as one evaluated after every chunk."""
+    result, _ = discrete_run
+    sparse = dataclasses.replace(CONFIG, eval_every_chunks=2, eval_episodes=8, final_eval_episodes=96)
+    other = run_ppo(sparse, PointEnv(), GoalOneHotConditioner(4), None, progress=False)
+    for a, b in zip(jax.tree.leaves(result.params), jax.tree.leaves(other.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert [_comparable(r)["train/success"] for r in other.history] == [r["train/success"] for r in result.history]
+    evaluated = ["eval/train/success" in row for row in other.history]
+    assert evaluated == [False, True, False, True, True]  # every 2 chunks, and after the last
+    per_seed_goal = other.final_eval["train"]["success_per_seed_goal"]
+    assert len(per_seed_goal) == 2 and all(len(row) == 4 for row in per_seed_goal)
+    # the final evaluation's 96 episodes per seed: success rates in steps of 1/96 over the whole split's seeds
+    counts = np.array(other.final_eval["train"]["success_per_seed"]) * 96
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    with pytest.raises(ValueError, match="final_eval_episodes must be >= 0"):
+        dataclasses.replace(CONFIG, final_eval_episodes=-1)
+
+
+def test_evaluation_stops_when_every_episode_ended_with_the_same_records():
+    """``evaluate_episodes`` ends its loop once every episode has ended; its records equal those of a loop over the
+    whole time limit with the same per-step keys."""
+    from talar_jax.acting import ConditionedEnv, evaluate_episodes
+
+    env = ConditionedEnv(PointEnv(PointConfig(continuous=True)), GoalOneHotConditioner(4), "train")
+    goals = jnp.asarray(GOALS)
+    steps_taken = []
+
+    def act(obs, instruction, rng):  # towards the goal, with noise: episodes end at different steps
+        steps_taken.append(1)
+        towards = goals[instruction] - obs[..., :2]  # the one-hot conditioner's instruction is the goal id
+        return jnp.clip(8.0 * towards + 0.5 * jax.random.normal(rng, towards.shape), -1.0, 1.0)
+
+    rng, num_episodes, limit = jax.random.PRNGKey(3), 32, int(env.env.episode_length)
+    record = evaluate_episodes(env, act, rng, num_episodes)
+    assert len(steps_taken) == 1  # traced once, inside the loop
+    rng_reset, rng_act = jax.random.split(rng)
+    carry = jax.vmap(env.reset)(jax.random.split(rng_reset, num_episodes))
+    finished, success, length = np.zeros(num_episodes), np.zeros(num_episodes), np.zeros(num_episodes)
+    for key in jax.random.split(rng_act, limit):
+        carry, outcome = jax.vmap(env.step)(carry, act(carry.state.obs, carry.instruction, key))
+        ends = (finished < 0.5) & (np.asarray(outcome["termination"] + outcome["truncation"]) > 0.5)
+        length += finished < 0.5
+        success = np.where(ends, outcome["success"], success)
+        finished = np.where(ends, 1.0, finished)
+    np.testing.assert_array_equal(record["success"], success)
+    np.testing.assert_array_equal(record["episode_length"], length)
+    assert 0 < success.mean() and length.max() < limit  # the loop stopped before the time limit

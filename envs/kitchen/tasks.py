@@ -71,8 +71,22 @@ _SCRIPTED_POSTURES: dict[str, tuple[float, ...]] = {
 }
 SCRIPTED_POSTURE = np.array([_SCRIPTED_POSTURES[name] for name in TASK_NAMES], np.float32)  # (6, 9)
 
-POSTURE_TARGETS: dict[str, np.ndarray] = {"talar": TARGET_POSTURE, "scripted": SCRIPTED_POSTURE}
-"""Target robot postures of the posture term: TALAR's hard-coded ones, or the scripted controller's at success."""
+# The microwave's posture at success has the door already open (about 0.45 rad): with the door closed it leaves the
+# fingertips 0.28 m from the handle, on the robot's side, and parking there is a trap (results/kitchen-seeds/). The
+# 'grasp' targets aim the microwave's term at the scripted controller's noise-free posture at step 100, with the
+# fingers behind the closed door's handle, the step before the door first moves (tests/test_kitchen_microwave.py
+# re-derives it); the other sub-tasks keep the posture at success, where the hand is already at the object.
+MICROWAVE_GRASP_POSTURE = np.array((-2.1448, -1.4059, 2.85, -0.4638, 0.2893, 0.2808, 2.3598, 0.04, 0.04), np.float32)
+GRASP_POSTURE = SCRIPTED_POSTURE.copy()
+GRASP_POSTURE[TASK_NAMES.index("microwave")] = MICROWAVE_GRASP_POSTURE
+
+POSTURE_TARGETS: dict[str, np.ndarray] = {
+    "talar": TARGET_POSTURE,
+    "scripted": SCRIPTED_POSTURE,
+    "grasp": GRASP_POSTURE,
+}
+"""Target robot postures of the posture term: TALAR's hard-coded ones, the scripted controller's at success, or
+those with the microwave's replaced by the posture that grasps the closed door's handle."""
 
 # The hinge cabinet is not a TALAR task, so it has no TALAR posture: both posture targets use the scripted
 # controller's posture at success (tests/test_kitchen.py re-derives it).
@@ -177,6 +191,7 @@ def single_task_reward(
     robot_qpos: jax.Array,
     goal: jax.Array,
     target_postures: np.ndarray = TARGET_POSTURE,
+    still_progress: jax.Array | None = None,
 ) -> dict[str, jax.Array]:
     """TALAR's ``prev_curr`` reward terms for one sub-task (sum them for the reward).
 
@@ -186,15 +201,17 @@ def single_task_reward(
         robot_qpos: (9,) robot joint observation after the step.
         goal: () int32 goal id.
         target_postures: (num_tasks, 9) target robot posture per sub-task (``posture_targets``; default TALAR's).
+        still_progress: () the progress the stillness test reads (None: ``progress``, as TALAR; the env passes the
+            noise-free progress when ``stillness='true'``).
 
     Returns:
         dict of () terms: ``progress`` (previous minus current distance), ``success`` (+1 when below
         ``BONUS_THRESH``), ``posture`` (minus the distance to the target posture / 100, only when the
-        object did not move: |progress| <= ``STILL_THRESH``).
+        object did not move: |still_progress| <= ``STILL_THRESH``).
     """
     progress = previous_distance - distance
     posture_distance = jnp.linalg.norm(robot_qpos - jnp.asarray(target_postures)[goal])
-    still = jnp.abs(progress) <= STILL_THRESH
+    still = jnp.abs(progress if still_progress is None else still_progress) <= STILL_THRESH
     return {
         "progress": progress,
         "success": (distance < BONUS_THRESH).astype(jnp.float32),
