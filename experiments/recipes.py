@@ -215,9 +215,9 @@ KITCHEN_TALAR = dataclasses.replace(
     paraphrase_unknown_words=True,
     translator_tokens=True,
 )
-# The posture term: the scripted controller's postures at success instead of TALAR's hard-coded ones, the microwave's at the
-# closed door's handle, and a stillness test on the noise-free distance (results/kitchen-seeds/: 8 of 8 probe seeds
-# open the microwave against 3 of 8); docs/kitchen-reward.md.
+# The posture term: the scripted controller's postures at success instead of TALAR's hard-coded ones, the
+# microwave's at the closed door's handle, and a stillness test on the noise-free distance (results/kitchen-seeds/:
+# 8 of 8 probe seeds open the microwave against 3 of 8); docs/kitchen-reward.md.
 KITCHEN_ENV_OPTIONS = {"posture_targets": "grasp", "stillness": "true"}
 
 register_recipe(

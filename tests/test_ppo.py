@@ -268,4 +268,4 @@ def test_evaluation_stops_when_every_episode_ended_with_the_same_records():
         finished = np.where(ends, 1.0, finished)
     np.testing.assert_array_equal(record["success"], success)
     np.testing.assert_array_equal(record["episode_length"], length)
-    assert 0 < success.mean() and length.max() < limit  # the loop stopped before the time limit
+    assert success.mean() > 0 and length.max() < limit  # the loop stopped before the time limit
