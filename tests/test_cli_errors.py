@@ -437,6 +437,7 @@ ARGPARSE_COMMANDS = (
     "experiments.analysis.finetuned_bert_drift",
     "experiments.analysis.side_tasks",
     "experiments.analysis.translator_robustness",
+    "benchmarks.accelerator",
     "benchmarks.aligned_encoder",
     "benchmarks.env_sps",
     "benchmarks.finetuned_bert",
