@@ -89,6 +89,20 @@ def generate_unroll(
     return jax.lax.scan(one_step, carry, jax.random.split(rng, length))
 
 
+def _record_step(record: dict[str, jax.Array], outcome: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """An evaluation's per-episode record after one more step: episodes still running count the step, and those
+    that end on it keep their success and return."""
+    running = record["finished"] < 0.5
+    ends = running & (outcome["termination"] + outcome["truncation"] > 0.5)
+    return {
+        **record,
+        "finished": jnp.where(ends, 1.0, record["finished"]),
+        "success": jnp.where(ends, outcome["success"], record["success"]),
+        "episode_return": jnp.where(ends, outcome["episode_return"], record["episode_return"]),
+        "episode_length": record["episode_length"] + running.astype(jnp.float32),
+    }
+
+
 def evaluate_episodes(
     env: ConditionedEnv,
     act: Callable[[jax.Array, jax.Array, jax.Array], jax.Array],
@@ -123,16 +137,7 @@ def evaluate_episodes(
     def one_step(loop: tuple[EnvCarry, dict[str, jax.Array]], rng_step: jax.Array):
         carry, record = loop
         new_carry, outcome = step_envs(carry, act(carry.state.obs, carry.instruction, rng_step))
-        running = record["finished"] < 0.5
-        ends = running & (outcome["termination"] + outcome["truncation"] > 0.5)
-        record = {
-            **record,
-            "finished": jnp.where(ends, 1.0, record["finished"]),
-            "success": jnp.where(ends, outcome["success"], record["success"]),
-            "episode_return": jnp.where(ends, outcome["episode_return"], record["episode_return"]),
-            "episode_length": record["episode_length"] + running.astype(jnp.float32),
-        }
-        return (new_carry, record), None
+        return (new_carry, _record_step(record, outcome)), None
 
     # A while loop, not a scan over the episode length: it stops once every episode has ended (under vmap, every
     # seed's), which on short successful episodes saves most of an evaluation. The per-step keys are the scan's, so

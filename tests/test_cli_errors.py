@@ -443,6 +443,7 @@ ARGPARSE_COMMANDS = (
     "benchmarks.finetuned_bert",
     "benchmarks.kitchen_model_cost",
     "benchmarks.pipeline",
+    "benchmarks.policy_stage",
     "benchmarks.soak",
     "benchmarks.supervised_layouts",
     "benchmarks.train_sps",

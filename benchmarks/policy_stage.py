@@ -1,0 +1,204 @@
+"""Where a policy stage's time goes, per PPO update: physics, acting, learning, evaluation, beside the learner's floor.
+
+``python -m benchmarks.policy_stage [--envs clevr kitchen] [--seeds 5] [--repeats 3] [--quick]``
+
+Times the experiment's IFP (the env recipe's PPO settings and env options, ``--seeds`` vmapped seeds, C physics) in
+parts that add up to an update, all in one process so that they are compared side by side:
+
+- **physics**: the bare batched C physics of an update's env steps (random actions, no policy);
+- **rollout**: a chunk with one SGD epoch minus that epoch: physics plus the policy's forward pass per step, the
+  callback's host round trips, reward normalisation and GAE;
+- **learning**: ``num_epochs`` SGD epochs, from the difference of chunks with ``num_epochs`` and with one epoch;
+- **evaluation**: one curve evaluation and the final one (both splits), spread over the updates between them.
+
+The learning's FLOP rate (forward and backward of the policy and value MLPs, 3x the forward's multiply-adds x 2)
+is printed beside the machine's measured float32 matmul rate, at a large square size (the machine's peak) and at
+the update's own shapes (seeds x minibatch rows through the hidden layers): the floor a learner of these sizes
+can reach. Prints a table and writes ``benchmarks/results/policy_stage.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import envs
+from benchmarks.env_sps import BenchConfig, time_backend
+from benchmarks.machine import machine_info
+from experiments.cli import ArgumentParser
+from experiments.recipes import get_recipe
+from talar_jax import runtime
+from talar_jax.conditioning import GoalOneHotConditioner
+from talar_jax.ppo import PPOConfig, derive, initial_state, make_evaluator, make_train
+
+RESULTS_DIR = Path(__file__).parent / "results"
+
+
+def _chunk_seconds(config: PPOConfig, env, repeats: int) -> float:
+    """Seconds per update of a compiled chunk of ``config`` (median over ``repeats`` chunks after a warm-up)."""
+    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    state = initial_state(trainer, config)
+    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    state, _ = jax.block_until_ready(chunk(state))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        state, _ = jax.block_until_ready(chunk(state))
+        times.append(time.perf_counter() - start)
+    return float(np.median(times)) / config.updates_per_chunk
+
+
+def _evaluation_seconds(config: PPOConfig, env) -> tuple[float, float]:
+    """Seconds of one curve evaluation and of the final one (both splits, every seed), untrained policy: every
+    episode runs to the time limit, an evaluation's most expensive case."""
+    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    params = initial_state(trainer, config).params
+    evaluate = make_evaluator(trainer, config, ("train", "test"), env.num_goals, params)
+    seconds = []
+    for final in (False, True):
+        evaluate(params, 0, final)  # the final evaluation's programs compile on first use
+        start = time.perf_counter()
+        evaluate(params, 1, final)
+        seconds.append(time.perf_counter() - start)
+    return seconds[0], seconds[1]
+
+
+def _mlp_flops(sizes: list[int]) -> int:
+    """Multiply-add FLOPs (2 per weight) of one sample's forward pass through dense layers of these widths."""
+    return sum(2 * a * b for a, b in zip(sizes[:-1], sizes[1:], strict=False))
+
+
+def learning_flops_per_update(config: PPOConfig, env) -> float:
+    """FLOPs of one update's SGD (all seeds): forward + backward (3x forward) of the policy and value MLPs over
+    ``num_epochs`` passes of the batch."""
+    inputs = env.observation_size + env.num_goals
+    hidden = list(config.hidden_sizes)
+    action = env.action_spec.size
+    per_sample = _mlp_flops([inputs, *hidden, action]) + _mlp_flops([inputs, *hidden, 1])
+    return 3.0 * per_sample * derive(config).batch_size * config.num_epochs * config.num_seeds
+
+
+def matmul_rate(rows: int, width: int, repeats: int = 20) -> float:
+    """Measured float32 FLOP/s of a (rows, width) @ (width, width) product, chained ``repeats`` times in one
+    program so that dispatch is not what is timed."""
+    x = jnp.ones((rows, width), jnp.float32)
+    w = jnp.full((width, width), 1.0 / width, jnp.float32)
+
+    def chain(x, w):
+        return jax.lax.fori_loop(0, repeats, lambda _, y: jnp.tanh(y @ w), x)
+
+    run = jax.jit(chain).lower(x, w).compile()
+    jax.block_until_ready(run(x, w))
+    best = float("inf")
+    for _ in range(5):
+        start = time.perf_counter()
+        jax.block_until_ready(run(x, w))
+        best = min(best, time.perf_counter() - start)
+    return 2.0 * rows * width * width * repeats / best
+
+
+def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
+    """One env's per-update parts, evaluation share and learner FLOP rate."""
+    recipe = get_recipe(env_name)
+    config = dataclasses.replace(recipe.ifp, num_seeds=seeds, updates_per_chunk=2)
+    if quick:
+        config = dataclasses.replace(config, num_envs=8, rollout_length=16, minibatch_size=32, num_epochs=2)
+        config = dataclasses.replace(config, eval_episodes=4, final_eval_episodes=8)
+    env = envs.make(env_name, physics="c", **recipe.env_options)
+    sizes = derive(config)
+    print(f"[{env_name}] chunks with {config.num_epochs} epochs and with 1", flush=True)
+    full = _chunk_seconds(config, env, repeats)
+    one_epoch = _chunk_seconds(dataclasses.replace(config, num_epochs=1), env, repeats)
+    epoch = max(full - one_epoch, 0.0) / max(config.num_epochs - 1, 1)
+    print(f"[{env_name}] bare physics and evaluation", flush=True)
+    batch = config.num_envs * seeds
+    bench = BenchConfig((), (), chunk_steps=config.rollout_length)
+    physics_sps = time_backend(env_name, "c", batch, bench, 1.0 if quick else 5.0, recipe.env_options)["steps_per_s"]
+    physics = sizes.env_steps_per_update * seeds / physics_sps
+    curve_eval, final_eval = _evaluation_seconds(config, env)
+    recipe_updates = derive(recipe.ifp).num_updates
+    evaluations = -(-derive(recipe.ifp).num_chunks // recipe.ifp.eval_every_chunks)
+    eval_per_update = (evaluations * curve_eval + final_eval) / recipe_updates
+    flops = learning_flops_per_update(config, env)
+    learning = config.num_epochs * epoch
+    return {
+        "env": env_name,
+        "seeds": seeds,
+        "config": {k: getattr(config, k) for k in ("num_envs", "rollout_length", "minibatch_size", "num_epochs")},
+        "update_s": full,
+        "physics_s": physics,
+        "rollout_s": one_epoch - epoch,
+        "acting_overhead_s": one_epoch - epoch - physics,
+        "learning_s": learning,
+        "eval_curve_s": curve_eval,
+        "eval_final_s": final_eval,
+        "eval_per_update_s": eval_per_update,
+        "eval_share": eval_per_update / (full + eval_per_update),
+        "ratio_to_physics": (full + eval_per_update) / physics,
+        "learning_flops_per_update": flops,
+        "learning_flop_rate": flops / learning if learning > 0 else None,
+    }
+
+
+def markdown(rows: list[dict], rates: dict) -> str:
+    lines = [
+        "Seconds per PPO update (all seeds), C physics; evaluation spread over the updates of a run at the recipe's "
+        "schedule (untrained policy: every episode to the time limit).",
+        "",
+        "| env | seeds | update | physics | acting (rollout - physics) | learning (SGD) | evaluation | "
+        "stage / physics | evaluation share | learning GFLOP/s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        rate = "-" if r["learning_flop_rate"] is None else f"{r['learning_flop_rate'] / 1e9:.2f}"
+        lines.append(
+            f"| {r['env']} | {r['seeds']} | {r['update_s']:.3f} | {r['physics_s']:.3f} | {r['acting_overhead_s']:.3f} "
+            f"| {r['learning_s']:.3f} | {r['eval_per_update_s']:.3f} | {r['ratio_to_physics']:.2f} | "
+            f"{100 * r['eval_share']:.1f} % | {rate} |"
+        )
+    lines += [
+        "",
+        f"Measured float32 matmul rate: {rates['peak'] / 1e9:.1f} GFLOP/s at {rates['peak_shape']} (the machine's "
+        f"peak), {rates['update_shape_rate'] / 1e9:.2f} GFLOP/s at the update's shape {rates['update_shape']}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    runtime.configure()
+    parser = ArgumentParser(prog="python -m benchmarks.policy_stage", description=__doc__)
+    parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"], help="envs to time (default: both)")
+    parser.add_argument("--seeds", type=int, default=5, help="vmapped seeds, as the experiments run (default: 5)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed chunks per setting, median (default: 3)")
+    parser.add_argument("--quick", action="store_true", help="tiny sizes, to check the command runs")
+    parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="folder for policy_stage.{json,md}")
+    args = parser.parse_args()
+    if args.seeds < 1 or args.repeats < 1:
+        parser.error("--seeds and --repeats must be >= 1")
+    for name in args.envs:
+        get_recipe(name)
+    rows = [measure(name, args.seeds, args.repeats, args.quick) for name in args.envs]
+    width, minibatch = max(get_recipe(args.envs[0]).ifp.hidden_sizes), get_recipe(args.envs[0]).ifp.minibatch_size
+    update_shape = (args.seeds * minibatch, width)
+    rates = {
+        "peak": matmul_rate(512 if args.quick else 1024, 512 if args.quick else 1024, 4),
+        "peak_shape": "1024 x 1024" if not args.quick else "512 x 512",
+        "update_shape_rate": matmul_rate(*update_shape, 200),
+        "update_shape": f"{update_shape[0]} x {update_shape[1]} @ {width} x {width}",
+    }
+    table = markdown(rows, rates)
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = {"machine": machine_info(), "args": {**vars(args), "out": str(args.out)}, "rates": rates, "rows": rows}
+    (args.out / "policy_stage.json").write_text(json.dumps(record, indent=2))
+    (args.out / "policy_stage.md").write_text(table)
+    print(table)
+
+
+if __name__ == "__main__":
+    main()
