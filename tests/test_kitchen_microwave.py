@@ -85,3 +85,34 @@ def test_experiment_recipe_uses_the_fixed_microwave_reward():
     from experiments.recipes import get_recipe
 
     assert get_recipe("kitchen").env_options == {"posture_targets": "grasp", "stillness": "true"}
+
+
+def _microwave_only_env(env_options: dict):
+    """The kitchen with every episode's sub-task the microwave (the PPO test below learns that one alone)."""
+    from envs.kitchen.env import KitchenConfig, KitchenEnv
+
+    class MicrowaveKitchen(KitchenEnv):
+        def reset(self, rng, goal=None):
+            return super().reset(rng, goal=MICROWAVE)
+
+    return MicrowaveKitchen(KitchenConfig(**env_options), "c")
+
+
+@pytest.mark.slow
+def test_goal_given_ppo_opens_the_microwave_within_a_small_budget():
+    """The experiment's PPO, told the goal, on the microwave alone: with the old reward (the at-success target and
+    the noisy stillness test) seeds 0 and 1 of base seed 0 stayed at 0 % at 0.41M steps; with the experiment's
+    reward both open it."""
+    import dataclasses
+
+    from experiments.recipes import get_recipe
+    from talar_jax.conditioning import GoalOneHotConditioner
+    from talar_jax.ppo import run_ppo
+
+    recipe = get_recipe("kitchen")
+    env = _microwave_only_env(recipe.env_options)
+    config = dataclasses.replace(
+        recipe.ifp, num_seeds=2, total_env_steps=409_600, eval_every_chunks=100, eval_episodes=32
+    )
+    result = run_ppo(config, env, GoalOneHotConditioner(env.num_goals), None, progress=False, eval_splits=("train",))
+    assert min(result.final_eval["train"]["success_per_seed"]) > 0.5, result.final_eval["train"]
