@@ -63,6 +63,28 @@ def final_success_per_goal(ifp: StageResult) -> dict[str, list[float | None]]:
     return {s: last[f"eval/{s}/success_per_goal"] for s in SPLITS}
 
 
+def final_success_per_seed_goal(ifp: StageResult) -> dict[str, list[list[float | None]]] | None:
+    """split -> (seeds, goals) success of the last evaluation, or None for runs logged before it was recorded."""
+    last = _eval_rows(ifp)[-1]
+    if f"eval/{SPLITS[0]}/success_per_seed_goal" not in last:
+        return None
+    return {s: last[f"eval/{s}/success_per_seed_goal"] for s in SPLITS}
+
+
+def _percent(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}"
+
+
+def per_seed_goal_table(table: list[list[float | None]], names: list[str]) -> str:
+    """Markdown table seed -> success (%) per goal, and the lowest seed's per goal: a seed that fails one goal
+    shows here, where pooled and per-seed means average it away."""
+    lines = ["| seed | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    lines += [f"| {seed} | " + " | ".join(map(_percent, row)) + " |" for seed, row in enumerate(table)]
+    lowest = [min((v for v in column if v is not None), default=None) for column in zip(*table, strict=True)]
+    lines.append("| lowest | " + " | ".join(map(_percent, lowest)) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def per_goal_table(per_goal: dict[str, list[float | None]], names: list[str]) -> str:
     """Markdown table goal -> success (%) per split."""
     lines = [
@@ -88,6 +110,10 @@ def _results_markdown(config, stages, setup, curve, per_goal, names) -> str:
     if get_recipe(config.env).per_goal_report:
         table += "\n#### Final success per sub-task (pooled over seeds)\n\n"
         table += per_goal_table(per_goal, names)
+        per_seed_goal = final_success_per_seed_goal(stages["ifp"])
+        if per_seed_goal is not None:
+            table += "\n#### Final success per seed and sub-task, training instructions (%)\n\n"
+            table += per_seed_goal_table(per_seed_goal["train"], names)
     return table
 
 
@@ -118,6 +144,7 @@ def write_report(
         **provenance(),
         "final_success": {s: v[:, -1].tolist() for s, v in curve.success.items()},
         "final_success_per_goal": per_goal,
+        "final_success_per_seed_goal": final_success_per_seed_goal(stages["ifp"]),
         "method_summary": setup.summary,
         "stage_seconds": {name: stage.seconds for name, stage in stages.items()},
     }

@@ -42,3 +42,13 @@ def test_results_table_mean_and_std():
     table = results_table({"TALAR": {"train": np.array([1.0, 0.9]), "test": np.array([0.5])}}, title="x")
     assert "| TALAR | 95.0 ± 5.0 (n=2) | 50.0 ± 0.0 (n=1) |" in table
     assert table.splitlines()[2].startswith("| method | train instructions (%) | test instructions (%)")
+
+
+def test_per_seed_goal_table_shows_the_lowest_seed_of_each_goal():
+    from experiments.reports import per_seed_goal_table
+
+    table = per_seed_goal_table([[1.0, 0.5, None], [0.9, 1.0, 1.0]], ["a", "b", "c"])
+    lines = table.strip().splitlines()
+    assert lines[0] == "| seed | a | b | c |"
+    assert lines[2] == "| 0 | 100 | 50 | - |"
+    assert lines[-1] == "| lowest | 90 | 50 | 100 |"
