@@ -167,6 +167,10 @@ def markdown(rows: list[dict], rates: dict) -> str:
         f"Measured float32 matmul rate: {rates['peak'] / 1e9:.1f} GFLOP/s at {rates['peak_shape']} (the machine's "
         f"peak), {rates['update_shape_rate'] / 1e9:.2f} GFLOP/s at the update's shape {rates['update_shape']}.",
     ]
+    for r in rows:
+        if r["learning_flop_rate"]:
+            share = r["learning_flop_rate"] / rates["update_shape_rate"]
+            lines.append(f"The {r['env']} learner runs at {100 * share:.0f} % of the matmul rate at its shape.")
     return "\n".join(lines) + "\n"
 
 
