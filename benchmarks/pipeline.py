@@ -32,6 +32,32 @@ from talar_jax.ppo import derive
 RESULTS_DIR = Path(__file__).parent / "results"
 
 
+def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
+    """The policy stage at its full budget from the timed chunks' metrics: training at the steady rate (the first
+    chunk left out) plus the full run's evaluations, the learning curve's at the measured cost of one and the dense
+    final one (the timed run's last chunk). A curve evaluation's cost, when none ran, is the final one's scaled by
+    episodes. The timed chunks come first in training, where every episode runs to the time limit: evaluation's worst
+    case."""
+    sizes = derive(ppo)
+    steady = [row["train/sps"] for row in metrics[1:]] or [metrics[0]["train/sps"]]
+    train_full_s = ppo.total_env_steps * seeds / float(np.mean(steady))
+    final_eval_s = float(metrics[-1].get("eval/seconds", 0.0))
+    evals = [row["eval/seconds"] for row in metrics[:-1] if "eval/seconds" in row]
+    scale = ppo.eval_episodes / (ppo.final_eval_episodes or ppo.eval_episodes)
+    eval_s = float(np.mean(evals)) if evals else final_eval_s * scale
+    evals_full = -(-(ppo.total_env_steps // sizes.env_steps_per_chunk) // ppo.eval_every_chunks)
+    eval_full_s = (evals_full - 1) * eval_s + final_eval_s
+    return {
+        "ifp_train_sps_steady": float(np.mean(steady)),
+        "ifp_eval_seconds_each": eval_s,
+        "ifp_evaluations_full": evals_full,
+        "ifp_final_eval_seconds": final_eval_s,
+        "ifp_eval_full_s_estimate": eval_full_s,
+        "ifp_eval_share": eval_full_s / (train_full_s + eval_full_s),
+        "ifp_full_s_estimate": train_full_s + eval_full_s,
+    }
+
+
 def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
     """Runs the pipeline's stages for one env and returns the per-stage timings and the bare-physics comparison."""
     base = default_config(env_name, seeds=seeds)
@@ -53,17 +79,8 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
     metrics = [json.loads(line) for line in (config.out / "talar/ifp/ppo/metrics.jsonl").read_text().splitlines()]
     ifp_compile = next((row["train/compile_s"] for row in metrics if "train/compile_s" in row), 0.0)
     stages["ifp"]["compile_s"] = ifp_compile
-    # Full budget: training chunks at the steady rate (the first chunk left out) plus the evaluations the full run
-    # makes: the learning curve's at the measured cost of one, and the dense final one (the timed run's last chunk).
-    # The timed chunks come first in training, where every episode runs to the time limit: evaluation's worst case.
-    steady = [row["train/sps"] for row in metrics[1:]] or [metrics[0]["train/sps"]]
-    train_full_s = full_steps * seeds / float(np.mean(steady))
-    evals = [row["eval/seconds"] for row in metrics[:-1] if "eval/seconds" in row]
-    final_eval_s = float(metrics[-1].get("eval/seconds", 0.0))
-    eval_s = float(np.mean(evals)) if evals else final_eval_s
-    evals_full = -(-(full_steps // sizes.env_steps_per_chunk) // base.ifp.eval_every_chunks)
-    eval_full_s = (evals_full - 1) * eval_s + final_eval_s
-    ifp_full_s = train_full_s + eval_full_s
+    ifp = _ifp_full_budget(metrics, base.ifp, seeds)
+    ifp_full_s = ifp["ifp_full_s_estimate"]
     batch = base.ifp.num_envs * seeds
     timed = time_backend(
         env_name, "c", batch, BenchConfig((), (), chunk_steps=base.ifp.rollout_length), 5.0, config.env_options
@@ -82,13 +99,7 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
         "ifp_env_steps_per_seed_timed": ran_steps,
         "stages": stages,
         "supervised_s": supervised_s,
-        "ifp_train_sps_steady": float(np.mean(steady)),
-        "ifp_eval_seconds_each": eval_s,
-        "ifp_evaluations_full": evals_full,
-        "ifp_final_eval_seconds": final_eval_s,
-        "ifp_eval_full_s_estimate": eval_full_s,
-        "ifp_eval_share": eval_full_s / ifp_full_s,
-        "ifp_full_s_estimate": ifp_full_s,
+        **ifp,
         "pipeline_full_s_estimate": pipeline_full_s,
         "bare_physics": physics,
         "bare_physics_full_s": physics_full_s,
