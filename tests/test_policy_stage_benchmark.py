@@ -1,4 +1,4 @@
-"""The policy-stage benchmark's FLOP count of a PPO update's learning (the learner's floor is judged by it)."""
+"""The speed benchmarks' arithmetic: the learner's FLOP count, and the pipeline's full-budget estimate."""
 
 import dataclasses
 
@@ -15,3 +15,16 @@ def test_learning_flops_count_forward_and_backward_of_both_networks_over_every_e
     assert learning_flops_per_update(config, env) == 3 * per_sample * 32 * 3 * 2  # x3 fwd+bwd, batch, epochs, seeds
     deeper = dataclasses.replace(config, hidden_sizes=(5, 5))
     assert learning_flops_per_update(deeper, env) > learning_flops_per_update(config, env)
+
+
+def test_pipeline_estimate_adds_the_curves_evaluations_and_the_final_one():
+    from benchmarks.pipeline import _ifp_full_budget
+
+    ppo = PPOConfig(num_envs=4, rollout_length=8, minibatch_size=8, updates_per_chunk=1, total_env_steps=320)
+    ppo = dataclasses.replace(ppo, eval_every_chunks=4, eval_episodes=10, final_eval_episodes=40)  # 10 chunks
+    rows = [{"train/sps": 100.0}, {"train/sps": 64.0}, {"train/sps": 64.0, "eval/seconds": 8.0}]
+    estimate = _ifp_full_budget(rows, ppo, seeds=2)
+    # training: 320 steps x 2 seeds at 64 steps/s; 3 evaluations (chunks 4, 8, 10): two curve ones at 8 x 10 / 40
+    assert estimate["ifp_evaluations_full"] == 3
+    assert estimate["ifp_eval_full_s_estimate"] == 2 * 2.0 + 8.0
+    assert estimate["ifp_full_s_estimate"] == 10.0 + 12.0
