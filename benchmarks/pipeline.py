@@ -8,7 +8,7 @@ chunks of the instruction-following policy. The IFP's full-budget time is extrap
 evaluations included, compilation apart). Beside it: the bare physics of the same env steps, i.e. the batched C
 backend stepping ``num_envs x seeds`` envs with random actions and no policy (``benchmarks.env_sps``' method).
 The ratio (RG + translator + IFP) / bare physics is what the pipeline costs on top of simulating its experience;
-the project's goal is 1.15. Prints a table and writes ``benchmarks/results/pipeline.{json,md}``.
+the target is 1.5. Prints a table and writes ``benchmarks/results/pipeline.{json,md}``.
 """
 
 from __future__ import annotations
