@@ -26,5 +26,7 @@ def machine_info() -> dict[str, object]:
         "cpu_count": os.cpu_count(),
         "vector_extensions": sorted(flags & {"avx2", "avx512f", "amx_tile"}),
         "jax_backend": jax.default_backend(),
+        # e.g. --xla_cpu_max_isa=AVX2 measures, on an AVX-512 machine, what XLA's code does without AVX-512
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
         "jax_devices": jax.local_device_count(),
     }
