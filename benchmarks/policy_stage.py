@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from benchmarks.accelerator import time_chunk
 from benchmarks.env_sps import BenchConfig, time_backend
 from benchmarks.machine import machine_info
 from experiments.cli import ArgumentParser
@@ -40,18 +41,11 @@ from talar_jax.ppo import PPOConfig, derive, initial_state, make_evaluator, make
 RESULTS_DIR = Path(__file__).parent / "results"
 
 
-def _chunk_seconds(config: PPOConfig, env, repeats: int) -> float:
-    """Seconds per update of a compiled chunk of ``config`` (median over ``repeats`` chunks after a warm-up)."""
-    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
-    state = initial_state(trainer, config)
-    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
-    state, _ = jax.block_until_ready(chunk(state))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        state, _ = jax.block_until_ready(chunk(state))
-        times.append(time.perf_counter() - start)
-    return float(np.median(times)) / config.updates_per_chunk
+def _chunk_seconds(env_name: str, config: PPOConfig, repeats: int) -> float:
+    """Seconds per update of the compiled chunk of ``config`` (``benchmarks.accelerator``'s timing, C physics):
+    the median over ``repeats`` chunks after a warm-up one."""
+    timed = time_chunk(env_name, "c", config, repeats + 1)
+    return float(np.median(timed["chunk_s"][1:])) / config.updates_per_chunk
 
 
 def _evaluation_seconds(config: PPOConfig, env) -> tuple[float, float]:
@@ -113,8 +107,8 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
     env = envs.make(env_name, physics="c", **recipe.env_options)
     sizes = derive(config)
     print(f"[{env_name}] chunks with {config.num_epochs} epochs and with 1", flush=True)
-    full = _chunk_seconds(config, env, repeats)
-    one_epoch = _chunk_seconds(dataclasses.replace(config, num_epochs=1), env, repeats)
+    full = _chunk_seconds(env_name, config, repeats)
+    one_epoch = _chunk_seconds(env_name, dataclasses.replace(config, num_epochs=1), repeats)
     epoch = max(full - one_epoch, 0.0) / max(config.num_epochs - 1, 1)
     print(f"[{env_name}] bare physics and evaluation", flush=True)
     batch = config.num_envs * seeds
