@@ -38,6 +38,7 @@ import numpy as np
 import envs
 from benchmarks.env_sps import BenchConfig, time_backend
 from benchmarks.machine import machine_info
+from envs.runtime import program_compiler_options
 from experiments.cli import ArgumentParser, check_output_path, valid_or_exit
 from experiments.config import ExperimentConfig
 from experiments.recipes import get_recipe
@@ -203,7 +204,7 @@ def time_chunk(name: str, physics: str, ppo: PPOConfig, calls: int) -> dict:
     compile_s = time.perf_counter() - start
     state = jax.block_until_ready(init(keys))
     start = time.perf_counter()
-    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
     compile_s += time.perf_counter() - start
     seconds = []
     for _ in range(calls):
@@ -269,7 +270,8 @@ def time_referential_game(name: str, sizes: Sizes) -> dict:
     state = jax.block_until_ready(init(keys, data))
     start = time.perf_counter()
     steps = sizes.rg_steps_per_call
-    run = jax.jit(jax.vmap(lambda s, d: fit.run(s, d, steps=steps), in_axes=(0, None))).lower(state, data).compile()
+    run = jax.jit(jax.vmap(lambda s, d: fit.run(s, d, steps=steps), in_axes=(0, None))).lower(state, data)
+    run = run.compile(compiler_options=program_compiler_options(steps_mjx=False))
     compile_s += time.perf_counter() - start
     state = jax.block_until_ready(run(state, data))[0]  # warm-up
     calls, start = 0, time.perf_counter()

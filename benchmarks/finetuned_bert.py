@@ -48,7 +48,7 @@ def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
     trainer = make_train(config, env, conditioner)
     state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
     start = time.perf_counter()
-    chunk = jax.jit(trainer.chunk).lower(state).compile()
+    chunk = jax.jit(trainer.chunk).lower(state).compile(compiler_options=trainer.compiler_options)
     compile_s = time.perf_counter() - start
     state, _ = chunk(state)  # warm-up
     jax.block_until_ready(state)

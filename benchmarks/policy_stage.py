@@ -6,9 +6,11 @@ Times the experiment's IFP (the env recipe's PPO settings and env options, ``--s
 parts that add up to an update, all in one process so that they are compared side by side:
 
 - **physics**: the bare batched C physics of an update's env steps (random actions, no policy);
-- **rollout**: a chunk with one SGD epoch minus that epoch: physics plus the policy's forward pass per step, the
-  callback's host round trips, reward normalisation and GAE;
-- **learning**: ``num_epochs`` SGD epochs, from the difference of chunks with ``num_epochs`` and with one epoch;
+- **learning**: an update's ``num_epochs`` SGD epochs alone (``Trainer.learn``, compiled as the chunk is, on a
+  rollout-sized batch of random data: SGD has no data-dependent branches). Timed apart rather than as the difference
+  of chunks with ten epochs and with one, since the two runs' policies, and so their physics (contacts), differ;
+- **acting**: the rest of the update: the policy's forward pass per step, the callback's host round trips, reward
+  normalisation and GAE;
 - **evaluation**: one curve evaluation and the final one (both splits), spread over the updates between them.
 
 The learning's FLOP rate (forward and backward of the policy and value MLPs, 3x the forward's multiply-adds x 2)
@@ -36,7 +38,7 @@ from experiments.cli import ArgumentParser
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.conditioning import GoalOneHotConditioner
-from talar_jax.ppo import PPOConfig, derive, initial_state, make_evaluator, make_train
+from talar_jax.ppo import Minibatch, PPOConfig, derive, initial_state, make_evaluator, make_train
 
 RESULTS_DIR = Path(__file__).parent / "results"
 
@@ -46,6 +48,36 @@ def _chunk_seconds(env_name: str, config: PPOConfig, repeats: int) -> float:
     the median over ``repeats`` chunks after a warm-up one."""
     timed = time_chunk(env_name, "c", config, repeats + 1)
     return float(np.median(timed["chunk_s"][1:])) / config.updates_per_chunk
+
+
+def _learning_seconds(config: PPOConfig, env, repeats: int, compiler_options: dict | None = None) -> float:
+    """Seconds of one update's SGD, all seeds (see the module docstring): the median of ``repeats`` calls after a
+    warm-up one. ``compiler_options``: the trainer's (None) or others, to compare."""
+    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    state = initial_state(trainer, config)
+    seeds, size, spec = config.num_seeds, derive(config).batch_size, env.action_spec
+    rng = np.random.default_rng(0)
+    instruction = np.asarray(state.env.instruction)  # (seeds, num_envs, ...): real instructions, repeated
+    instruction = np.concatenate([instruction] * -(-size // instruction.shape[1]), axis=1)[:, :size]
+    if spec.kind == "continuous":
+        action = rng.normal(size=(seeds, size, spec.size)).astype(np.float32)
+    else:
+        heads = spec.sizes if spec.kind == "multi_discrete" else (spec.size,)
+        action = np.stack([rng.integers(0, n, (seeds, size)) for n in heads], -1).astype(np.int32)
+        action = action[..., 0] if spec.kind == "discrete" else action
+    normal = [rng.normal(size=(seeds, size)).astype(np.float32) for _ in range(3)]
+    obs = rng.normal(size=(seeds, size, env.observation_size)).astype(np.float32)
+    batch = Minibatch(obs, instruction, action, *normal)
+    keys = jax.random.split(jax.random.PRNGKey(1), seeds)
+    args = (state.params, state.opt_state, batch, keys)
+    options = trainer.compiler_options if compiler_options is None else compiler_options
+    learn = jax.jit(jax.vmap(trainer.learn)).lower(*args).compile(compiler_options=options)
+    seconds = []
+    for _ in range(repeats + 1):
+        start = time.perf_counter()
+        jax.block_until_ready(learn(*args))
+        seconds.append(time.perf_counter() - start)
+    return float(np.median(seconds[1:]))
 
 
 def _evaluation_seconds(config: PPOConfig, env) -> tuple[float, float]:
@@ -106,10 +138,10 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
         config = dataclasses.replace(config, eval_episodes=4, final_eval_episodes=8)
     env = envs.make(env_name, physics="c", **recipe.env_options)
     sizes = derive(config)
-    print(f"[{env_name}] chunks with {config.num_epochs} epochs and with 1", flush=True)
+    print(f"[{env_name}] chunks, and an update's SGD alone", flush=True)
     full = _chunk_seconds(env_name, config, repeats)
-    one_epoch = _chunk_seconds(env_name, dataclasses.replace(config, num_epochs=1), repeats)
-    epoch = max(full - one_epoch, 0.0) / max(config.num_epochs - 1, 1)
+    learning = _learning_seconds(config, env, repeats)
+    learning_process_flag = _learning_seconds(config, env, repeats, compiler_options={})
     print(f"[{env_name}] bare physics and evaluation", flush=True)
     batch = config.num_envs * seeds
     bench = BenchConfig((), (), chunk_steps=config.rollout_length)
@@ -120,16 +152,16 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
     evaluations = -(-derive(recipe.ifp).num_chunks // recipe.ifp.eval_every_chunks)
     eval_per_update = (evaluations * curve_eval + final_eval) / recipe_updates
     flops = learning_flops_per_update(config, env)
-    learning = config.num_epochs * epoch
     return {
         "env": env_name,
         "seeds": seeds,
         "config": {k: getattr(config, k) for k in ("num_envs", "rollout_length", "minibatch_size", "num_epochs")},
         "update_s": full,
         "physics_s": physics,
-        "rollout_s": one_epoch - epoch,
-        "acting_overhead_s": one_epoch - epoch - physics,
+        "rollout_s": full - learning,
+        "acting_overhead_s": full - learning - physics,
         "learning_s": learning,
+        "learning_process_flag_s": learning_process_flag,
         "eval_curve_s": curve_eval,
         "eval_final_s": final_eval,
         "eval_per_update_s": eval_per_update,
@@ -145,7 +177,7 @@ def markdown(rows: list[dict], rates: dict) -> str:
         "Seconds per PPO update (all seeds), C physics; evaluation spread over the updates of a run at the recipe's "
         "schedule (untrained policy: every episode to the time limit).",
         "",
-        "| env | seeds | update | physics | acting (rollout - physics) | learning (SGD) | evaluation | "
+        "| env | seeds | update | physics | acting (update - physics - learning) | learning (SGD) | evaluation | "
         "stage / physics | evaluation share | learning GFLOP/s |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
@@ -164,7 +196,11 @@ def markdown(rows: list[dict], rates: dict) -> str:
     for r in rows:
         if r["learning_flop_rate"]:
             share = r["learning_flop_rate"] / rates["update_shape_rate"]
-            lines.append(f"The {r['env']} learner runs at {100 * share:.0f} % of the matmul rate at its shape.")
+            lines.append(
+                f"The {r['env']} learner runs at {100 * share:.0f} % of the matmul rate at its shape; compiled "
+                f"under the process's MJX flag (fusion emitters off) it took {r['learning_process_flag_s']:.3f} s, "
+                f"{r['learning_process_flag_s'] / r['learning_s']:.2f}x as long."
+            )
     return "\n".join(lines) + "\n"
 
 

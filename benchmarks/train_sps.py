@@ -38,7 +38,7 @@ def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: i
     trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
     state = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), 1))
     start = time.perf_counter()
-    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
     compile_s = time.perf_counter() - start
     state, _ = chunk(state)  # warm-up
     jax.block_until_ready(state)

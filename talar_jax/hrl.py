@@ -96,6 +96,11 @@ class HighLevelEnv:
         return 1
 
     @property
+    def backend(self) -> str | None:
+        """The low-level env's physics backend (it decides how programs stepping this env compile)."""
+        return getattr(getattr(self.low_env, "unwrapped", self.low_env), "backend", None)
+
+    @property
     def unwrapped(self) -> HighLevelEnv:
         return self
 

@@ -20,6 +20,7 @@ import numpy as np
 import optax
 from flax import serialization
 
+from envs.runtime import program_compiler_options
 from talar_jax.checkpoint import load_tree, save_tree
 
 
@@ -93,7 +94,8 @@ class _PieceRunners:
             compile_start = time.perf_counter()
             fit = self.fit
             runner = jax.jit(jax.vmap(lambda s, *x, n=steps: fit.run(s, *x, steps=n), in_axes=(0, *self.in_axes)))
-            self.compiled[steps] = runner.lower(state, *inputs).compile()
+            options = program_compiler_options(steps_mjx=False)  # supervised fits step no physics
+            self.compiled[steps] = runner.lower(state, *inputs).compile(compiler_options=options)
             self.compile_s += time.perf_counter() - compile_start
         return self.compiled[steps](state, *inputs)
 

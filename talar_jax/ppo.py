@@ -25,6 +25,7 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
+from envs.runtime import program_compiler_options
 from talar_jax.acting import ConditionedEnv, evaluate_episodes, generate_unroll
 from talar_jax.checkpoint import Checkpointer, write_json_atomic
 from talar_jax.conditioning import SPLITS, Conditioner, check_split
@@ -175,6 +176,12 @@ class Trainer(NamedTuple):
     chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, jax.Array]]]
     evaluate: Callable[..., dict[str, jax.Array]]
     train: Callable[[jax.Array], tuple[TrainingState, dict[str, jax.Array]]]
+    learn: Callable[..., tuple[dict[str, Any], Any, dict[str, jax.Array]]]
+    """An update's SGD alone: ``learn(params, opt_state, batch, rng) -> (params, opt_state, loss metrics)`` for a
+    flat ``Minibatch`` of one rollout (what ``chunk`` runs after each rollout; benchmarks time it apart)."""
+    compiler_options: dict[str, Any]
+    """XLA options for compiling ``chunk`` and ``evaluate`` (``Lowered.compile(compiler_options=...)``): the
+    env's physics decides (``envs.runtime.program_compiler_options``)."""
 
 
 class _Learner:
@@ -261,12 +268,19 @@ class _Learner:
         metrics["losses/grad_norm"] = optax.global_norm(grads)
         return ({**params, **optax.apply_updates(trainable, updates)}, opt_state), metrics
 
-    def _epoch(self, carry: tuple[Any, Any], inputs: tuple[jax.Array, Minibatch]):
-        rng, batch = inputs
+    def _epoch(self, batch: Minibatch, carry: tuple[Any, Any], rng: jax.Array):
         order = jax.random.permutation(rng, self.sizes.batch_size)
         shape = (self.sizes.num_minibatches, self.config.minibatch_size)
         minibatches = jax.tree.map(lambda x: x[order].reshape(shape + x.shape[1:]), batch)
         return jax.lax.scan(self._minibatch_step, carry, minibatches)
+
+    def learn(self, params: dict[str, Any], opt_state: Any, batch: Minibatch, rng: jax.Array):
+        """``num_epochs`` passes of minibatch SGD over a flat rollout ``batch``, each in a fresh random order."""
+        epoch = functools.partial(self._epoch, batch)
+        (params, opt_state), metrics = jax.lax.scan(
+            epoch, (params, opt_state), jax.random.split(rng, self.config.num_epochs)
+        )
+        return params, opt_state, metrics
 
     def update(self, state: TrainingState, _: Any = None) -> tuple[TrainingState, dict[str, jax.Array]]:
         """One PPO update: rollout, normalised rewards, GAE, ``num_epochs`` x minibatch SGD."""
@@ -285,9 +299,7 @@ class _Learner:
         )
         batch = Minibatch(traj.obs, traj.instruction, traj.action, traj.log_prob, advantages, returns)
         batch = jax.tree.map(lambda x: x.reshape((self.sizes.batch_size,) + x.shape[2:]), batch)
-        epoch_keys = jax.random.split(rng_sgd, c.num_epochs)
-        epoch_inputs = (epoch_keys, jax.tree.map(lambda x: jnp.broadcast_to(x, (c.num_epochs,) + x.shape), batch))
-        (params, opt_state), loss_metrics = jax.lax.scan(self._epoch, (state.params, state.opt_state), epoch_inputs)
+        params, opt_state, loss_metrics = self.learn(state.params, state.opt_state, batch, rng_sgd)
         if c.normalize_observations:  # the rollout was acted and learned on with the old statistics
             params = {**params, OBS_NORMALIZER: update_observation_stats(params[OBS_NORMALIZER], traj.obs)}
         done = traj.episode_done
@@ -338,7 +350,18 @@ class _Learner:
 def make_train(config: PPOConfig, env: Any, conditioner: Conditioner) -> Trainer:
     """Pure per-seed PPO functions for an (unwrapped) env and a conditioner; see ``Trainer``."""
     learner = _Learner(config, env, conditioner)
-    return Trainer(learner.networks, learner.make_policy, learner.init, learner.chunk, learner.evaluate, learner.train)
+    # An env that does not name its physics may step MJX inside the program.
+    options = program_compiler_options(getattr(getattr(env, "unwrapped", env), "backend", None) != "c")
+    return Trainer(
+        learner.networks,
+        learner.make_policy,
+        learner.init,
+        learner.chunk,
+        learner.evaluate,
+        learner.train,
+        learner.learn,
+        options,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -463,7 +486,7 @@ def make_evaluator(
         return {
             split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split, num_episodes=num_episodes)))
             .lower(params, keys)
-            .compile()
+            .compile(compiler_options=trainer.compiler_options)
             for split in splits
         }
 
@@ -492,7 +515,7 @@ def _compile_run(
     trainer: Trainer, config: PPOConfig, eval_splits: Sequence[str], num_goals: int, state: TrainingState
 ) -> _Compiled:
     compile_start = time.perf_counter()
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile()
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
     evaluate = make_evaluator(trainer, config, eval_splits, num_goals, state.params)
     return _Compiled(chunk_fn, evaluate, time.perf_counter() - compile_start)
 

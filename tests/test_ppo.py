@@ -269,3 +269,38 @@ def test_evaluation_stops_when_every_episode_ended_with_the_same_records():
     np.testing.assert_array_equal(record["success"], success)
     np.testing.assert_array_equal(record["episode_length"], length)
     assert success.mean() > 0 and length.max() < limit  # the loop stopped before the time limit
+
+
+def test_programs_compile_with_the_fusion_emitters_unless_they_step_mjx():
+    """The CPU flag MJX needs is overridden per program: a trainer of a C-physics env (or a high-level env over one)
+    compiles its chunk with XLA's fusion emitters; one of an MJX env, or of an env that does not name its physics,
+    keeps the process flag. ``learn`` is the update's SGD: the chunk's parameters follow from it."""
+    import envs
+    from talar_jax.hrl import HighLevelEnv
+
+    fusion = {"xla_cpu_use_fusion_emitters": True}
+    cond = GoalOneHotConditioner(80)
+    assert make_train(CONFIG, envs.make("clevr", physics="c"), cond).compiler_options == fusion
+    assert make_train(CONFIG, envs.make("clevr", physics="mjx"), cond).compiler_options == {}
+    assert make_train(CONFIG, PointEnv(), GoalOneHotConditioner(4)).compiler_options == {}
+    spec = envs.make("clevr", physics="c").action_spec
+    high = HighLevelEnv(envs.make("clevr", physics="c"), lambda obs, code, rng: jnp.zeros((), jnp.int32), spec, None)
+    assert make_train(CONFIG, high, GoalOneHotConditioner(1)).compiler_options == fusion
+
+
+def test_learn_is_the_updates_sgd():
+    """``Trainer.learn`` on a flat batch moves the parameters and returns per-epoch, per-minibatch loss metrics."""
+    from talar_jax.ppo import Minibatch
+
+    trainer = make_train(CONFIG, PointEnv(), GoalOneHotConditioner(4))
+    state = trainer.init(jax.random.PRNGKey(0))
+    size = derive(CONFIG).batch_size
+    rng = np.random.default_rng(0)
+    normal = [jnp.asarray(rng.normal(size=size), jnp.float32) for _ in range(3)]
+    obs = jnp.asarray(rng.normal(size=(size, PointEnv().observation_size)), jnp.float32)
+    action = jnp.asarray(rng.integers(0, PointEnv().action_spec.size, size), jnp.int32)
+    batch = Minibatch(obs, jnp.zeros(size, jnp.int32), action, *normal)
+    params, _, metrics = jax.jit(trainer.learn)(state.params, state.opt_state, batch, jax.random.PRNGKey(1))
+    moved = [not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(params))]
+    assert any(moved)
+    assert metrics["losses/policy"].shape == (CONFIG.num_epochs, derive(CONFIG).num_minibatches)
