@@ -14,9 +14,11 @@ parts that add up to an update, all in one process so that they are compared sid
 - **evaluation**: one curve evaluation and the final one (both splits), spread over the updates between them.
 
 The learning's FLOP rate (forward and backward of the policy and value MLPs, 3x the forward's multiply-adds x 2)
-is printed beside the machine's measured float32 matmul rate, at a large square size (the machine's peak) and at
-the update's own shapes (seeds x minibatch rows through the hidden layers): the floor a learner of these sizes
-can reach. Prints a table and writes ``benchmarks/results/policy_stage.{json,md}``.
+is compared with the machine's float32 matmul rate at the update's own shape (seeds x minibatch rows through the
+widest hidden layer): the floor a learner of these sizes can reach. That rate is timed beside the learner, call for
+call, since this machine's speed drifts by 20-30 % over minutes; the peak at a large square size is printed too.
+The learner is also timed as the process's MJX flag would compile it (fusion emitters off). Prints a table and
+writes ``benchmarks/results/policy_stage.{json,md}``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -50,9 +54,13 @@ def _chunk_seconds(env_name: str, config: PPOConfig, repeats: int) -> float:
     return float(np.median(timed["chunk_s"][1:])) / config.updates_per_chunk
 
 
-def _learning_seconds(config: PPOConfig, env, repeats: int, compiler_options: dict | None = None) -> float:
-    """Seconds of one update's SGD, all seeds (see the module docstring): the median of ``repeats`` calls after a
-    warm-up one. ``compiler_options``: the trainer's (None) or others, to compare."""
+def _learning_seconds(
+    config: PPOConfig, env, repeats: int, compiler_options: dict | None = None
+) -> tuple[float, float]:
+    """Seconds of one update's SGD, all seeds (see the module docstring), and the matmul rate at the update's shape
+    measured beside it: each timed call of the SGD is followed by one of ``matmul_program``'s chain, so that the two
+    share the machine's state (other tenants, clock) and their ratio is steady where absolute times are not. Medians
+    of ``repeats`` pairs after a warm-up one. ``compiler_options``: the trainer's (None) or others, to compare."""
     trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
     state = initial_state(trainer, config)
     seeds, size, spec = config.num_seeds, derive(config).batch_size, env.action_spec
@@ -67,17 +75,22 @@ def _learning_seconds(config: PPOConfig, env, repeats: int, compiler_options: di
         action = action[..., 0] if spec.kind == "discrete" else action
     normal = [rng.normal(size=(seeds, size)).astype(np.float32) for _ in range(3)]
     obs = rng.normal(size=(seeds, size, env.observation_size)).astype(np.float32)
-    batch = Minibatch(obs, instruction, action, *normal)
     keys = jax.random.split(jax.random.PRNGKey(1), seeds)
-    args = (state.params, state.opt_state, batch, keys)
+    args = (state.params, state.opt_state, Minibatch(obs, instruction, action, *normal), keys)
     options = trainer.compiler_options if compiler_options is None else compiler_options
     learn = jax.jit(jax.vmap(trainer.learn)).lower(*args).compile(compiler_options=options)
-    seconds = []
+    reference, reference_flops = matmul_program(*update_shape(config), 2000)
+    learn_s, reference_s = [], []
     for _ in range(repeats + 1):
-        start = time.perf_counter()
-        jax.block_until_ready(learn(*args))
-        seconds.append(time.perf_counter() - start)
-    return float(np.median(seconds[1:]))
+        learn_s.append(_seconds(lambda: learn(*args)))
+        reference_s.append(_seconds(reference))
+    return float(np.median(learn_s[1:])), reference_flops / float(np.median(reference_s[1:]))
+
+
+def _seconds(call: Callable[[], Any]) -> float:
+    start = time.perf_counter()
+    jax.block_until_ready(call())
+    return time.perf_counter() - start
 
 
 def _evaluation_seconds(config: PPOConfig, env) -> tuple[float, float]:
@@ -110,9 +123,14 @@ def learning_flops_per_update(config: PPOConfig, env) -> float:
     return 3.0 * per_sample * derive(config).batch_size * config.num_epochs * config.num_seeds
 
 
-def matmul_rate(rows: int, width: int, repeats: int = 20) -> float:
-    """Measured float32 FLOP/s of a (rows, width) @ (width, width) product, chained ``repeats`` times in one
-    program so that dispatch is not what is timed."""
+def update_shape(config: PPOConfig) -> tuple[int, int]:
+    """(rows, width) of the update's widest layer: all seeds' minibatch rows through the widest hidden layer."""
+    return config.num_seeds * config.minibatch_size, max(config.hidden_sizes)
+
+
+def matmul_program(rows: int, width: int, repeats: int) -> tuple[Callable[[], Any], float]:
+    """A compiled chain of ``repeats`` float32 (rows, width) @ (width, width) products in one program (so that
+    dispatch is not what is timed), as a call, and its FLOPs."""
     x = jnp.ones((rows, width), jnp.float32)
     w = jnp.full((width, width), 1.0 / width, jnp.float32)
 
@@ -121,12 +139,13 @@ def matmul_rate(rows: int, width: int, repeats: int = 20) -> float:
 
     run = jax.jit(chain).lower(x, w).compile()
     jax.block_until_ready(run(x, w))
-    best = float("inf")
-    for _ in range(5):
-        start = time.perf_counter()
-        jax.block_until_ready(run(x, w))
-        best = min(best, time.perf_counter() - start)
-    return 2.0 * rows * width * width * repeats / best
+    return (lambda: run(x, w)), 2.0 * rows * width * width * repeats
+
+
+def matmul_rate(rows: int, width: int, repeats: int = 20) -> float:
+    """Measured float32 FLOP/s of ``matmul_program``: the best of 5 calls."""
+    call, flops = matmul_program(rows, width, repeats)
+    return flops / min(_seconds(call) for _ in range(5))
 
 
 def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
@@ -140,8 +159,8 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
     sizes = derive(config)
     print(f"[{env_name}] chunks, and an update's SGD alone", flush=True)
     full = _chunk_seconds(env_name, config, repeats)
-    learning = _learning_seconds(config, env, repeats)
-    learning_process_flag = _learning_seconds(config, env, repeats, compiler_options={})
+    learning, reference_rate = _learning_seconds(config, env, repeats)
+    learning_process_flag, _ = _learning_seconds(config, env, repeats, compiler_options={})
     print(f"[{env_name}] bare physics and evaluation", flush=True)
     batch = config.num_envs * seeds
     bench = BenchConfig((), (), chunk_steps=config.rollout_length)
@@ -169,6 +188,8 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
         "ratio_to_physics": (full + eval_per_update) / physics,
         "learning_flops_per_update": flops,
         "learning_flop_rate": flops / learning if learning > 0 else None,
+        "matmul_rate_beside_learning": reference_rate,
+        "learning_share_of_matmul_rate": flops / learning / reference_rate if learning > 0 else None,
     }
 
 
@@ -195,9 +216,9 @@ def markdown(rows: list[dict], rates: dict) -> str:
     ]
     for r in rows:
         if r["learning_flop_rate"]:
-            share = r["learning_flop_rate"] / rates["update_shape_rate"]
             lines.append(
-                f"The {r['env']} learner runs at {100 * share:.0f} % of the matmul rate at its shape; compiled "
+                f"The {r['env']} learner runs at {100 * r['learning_share_of_matmul_rate']:.0f} % of the matmul rate "
+                f"at its shape measured beside it ({r['matmul_rate_beside_learning'] / 1e9:.1f} GFLOP/s); compiled "
                 f"under the process's MJX flag (fusion emitters off) it took {r['learning_process_flag_s']:.3f} s, "
                 f"{r['learning_process_flag_s'] / r['learning_s']:.2f}x as long."
             )
@@ -219,12 +240,12 @@ def main() -> None:
         get_recipe(name)
     rows = [measure(name, args.seeds, args.repeats, args.quick) for name in args.envs]
     width, minibatch = max(get_recipe(args.envs[0]).ifp.hidden_sizes), get_recipe(args.envs[0]).ifp.minibatch_size
-    update_shape = (args.seeds * minibatch, width)
+    shape = (args.seeds * minibatch, width)
     rates = {
         "peak": matmul_rate(512 if args.quick else 1024, 512 if args.quick else 1024, 4),
         "peak_shape": "1024 x 1024" if not args.quick else "512 x 512",
-        "update_shape_rate": matmul_rate(*update_shape, 200),
-        "update_shape": f"{update_shape[0]} x {update_shape[1]} @ {width} x {width}",
+        "update_shape_rate": matmul_rate(*shape, 200),
+        "update_shape": f"{shape[0]} x {shape[1]} @ {width} x {width}",
     }
     table = markdown(rows, rates)
     args.out.mkdir(parents=True, exist_ok=True)
