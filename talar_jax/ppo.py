@@ -269,7 +269,10 @@ class _Learner:
         return ({**params, **optax.apply_updates(trainable, updates)}, opt_state), metrics
 
     def _epoch(self, batch: Minibatch, carry: tuple[Any, Any], rng: jax.Array):
-        order = jax.random.permutation(rng, self.sizes.batch_size)
+        # One stable sort of random 32-bit keys. jax.random.permutation sorts twice at this size to rule out key
+        # ties (here a pair ties with probability 0.2 % per epoch, and the tied pair keeps its rollout order); the
+        # sorts were 20 % of the kitchen learner's time.
+        order = jnp.argsort(jax.random.bits(rng, (self.sizes.batch_size,)), stable=True)
         shape = (self.sizes.num_minibatches, self.config.minibatch_size)
         minibatches = jax.tree.map(lambda x: x[order].reshape(shape + x.shape[1:]), batch)
         return jax.lax.scan(self._minibatch_step, carry, minibatches)
