@@ -63,6 +63,20 @@ def _learning_seconds(
     of ``repeats`` pairs after a warm-up one. ``compiler_options``: the trainer's (None) or others, to compare."""
     trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
     state = initial_state(trainer, config)
+    keys = jax.random.split(jax.random.PRNGKey(1), config.num_seeds)
+    args = (state.params, state.opt_state, _random_rollout_batch(config, env, state), keys)
+    options = trainer.compiler_options if compiler_options is None else compiler_options
+    learn = jax.jit(jax.vmap(trainer.learn)).lower(*args).compile(compiler_options=options)
+    reference, reference_flops = matmul_program(*update_shape(config), 2000)
+    learn_s, reference_s = [], []
+    for _ in range(repeats + 1):
+        learn_s.append(_seconds(lambda: learn(*args)))
+        reference_s.append(_seconds(reference))
+    return float(np.median(learn_s[1:])), reference_flops / float(np.median(reference_s[1:]))
+
+
+def _random_rollout_batch(config: PPOConfig, env, state) -> Minibatch:
+    """A seed-stacked flat ``Minibatch`` of one rollout's shapes: random data, the env's real instructions."""
     seeds, size, spec = config.num_seeds, derive(config).batch_size, env.action_spec
     rng = np.random.default_rng(0)
     instruction = np.asarray(state.env.instruction)  # (seeds, num_envs, ...): real instructions, repeated
@@ -75,16 +89,7 @@ def _learning_seconds(
         action = action[..., 0] if spec.kind == "discrete" else action
     normal = [rng.normal(size=(seeds, size)).astype(np.float32) for _ in range(3)]
     obs = rng.normal(size=(seeds, size, env.observation_size)).astype(np.float32)
-    keys = jax.random.split(jax.random.PRNGKey(1), seeds)
-    args = (state.params, state.opt_state, Minibatch(obs, instruction, action, *normal), keys)
-    options = trainer.compiler_options if compiler_options is None else compiler_options
-    learn = jax.jit(jax.vmap(trainer.learn)).lower(*args).compile(compiler_options=options)
-    reference, reference_flops = matmul_program(*update_shape(config), 2000)
-    learn_s, reference_s = [], []
-    for _ in range(repeats + 1):
-        learn_s.append(_seconds(lambda: learn(*args)))
-        reference_s.append(_seconds(reference))
-    return float(np.median(learn_s[1:])), reference_flops / float(np.median(reference_s[1:]))
+    return Minibatch(obs, instruction, action, *normal)
 
 
 def _seconds(call: Callable[[], Any]) -> float:
@@ -239,8 +244,8 @@ def main() -> None:
     for name in args.envs:
         get_recipe(name)
     rows = [measure(name, args.seeds, args.repeats, args.quick) for name in args.envs]
-    width, minibatch = max(get_recipe(args.envs[0]).ifp.hidden_sizes), get_recipe(args.envs[0]).ifp.minibatch_size
-    shape = (args.seeds * minibatch, width)
+    shape = update_shape(dataclasses.replace(get_recipe(args.envs[0]).ifp, num_seeds=args.seeds))
+    width = shape[1]
     rates = {
         "peak": matmul_rate(512 if args.quick else 1024, 512 if args.quick else 1024, 4),
         "peak_shape": "1024 x 1024" if not args.quick else "512 x 512",
