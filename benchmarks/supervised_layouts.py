@@ -7,7 +7,9 @@ on a task dataset, in the layout the fits choose (the receiver's first layer onc
 translator once per distinct sentence, when those are fewer than the rows of a step) and in the per-row layout,
 side by side in one process; with ``--prefix-dims k`` also the chosen layout of the game whose receiver reads the
 prefixes' first k principal components (``TalarConfig.receiver_prefix_dims``), and with ``--token-slots K`` the game
-reading at most K token slots per tuple (``TalarConfig.rg_token_slots``; 0: every slot). Prints a table and writes
+reading at most K token slots per tuple (``TalarConfig.rg_token_slots``; 0: every slot). Beside the current code it
+times the formulations before: the translator's attention pooling with autodiff's gradient, and the game's per-row
+receiver on the broadcast [TL, prefix] input. Prints a table and writes
 ``benchmarks/results/supervised_layouts_<env>.json``.
 """
 
@@ -20,31 +22,36 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from benchmarks.machine import machine_info
+from envs.runtime import program_compiler_options
 from experiments.cli import ArgumentParser
+from experiments.config import default_config
 from experiments.recipes import get_recipe
-from talar_jax import runtime
+from talar_jax import runtime, talar, task_language
 from talar_jax.dataset import TaskDataset
-from talar_jax.language import build_cache
+from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features
 from talar_jax.talar import (
     make_task_language_data,
     make_train_task_language,
     make_train_translator,
     prepare_referential_data,
+    trim_token_padding,
 )
 
 RESULTS_DIR = Path(__file__).parent / "results"
 
 
 def time_fit(fit, data, extra: tuple, seeds: int, steps: int) -> float:
-    """Seconds per step of ``fit`` (vmapped over seeds), compile and a warm-up call apart."""
+    """Seconds per step of ``fit`` (vmapped over seeds), compile and a warm-up call apart, compiled as the fits are
+    (``optim.fit_seeds``: XLA's fusion emitters on)."""
     keys = jax.random.split(jax.random.key(0), seeds)
     in_axes = (0,) + (0,) * len(extra) + (None,)
     state = jax.jit(jax.vmap(fit.init, in_axes=in_axes))(keys, *extra, data)
     run = jax.jit(jax.vmap(lambda s, *x: fit.run(s, *x, steps=steps), in_axes=in_axes))
-    compiled = run.lower(state, *extra, data).compile()
+    compiled = run.lower(state, *extra, data).compile(compiler_options=program_compiler_options(steps_mjx=False))
     jax.block_until_ready(compiled(state, *extra, data))
     start = time.perf_counter()
     jax.block_until_ready(compiled(state, *extra, data))
@@ -59,8 +66,8 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--steps", type=int, default=200, help="timed steps per fit, compile apart (default: 200)")
     parser.add_argument(
         "--sentence-readout",
-        default="sentence+prefixes",
-        help="what the fits read of an instruction (default: sentence+prefixes)",
+        default=None,
+        help="what the translator reads of an instruction (default: the recipe's, token states where it reads them)",
     )
     parser.add_argument(
         "--prefix-dims", type=int, nargs="*", default=[32], help="also time the game with receiver_prefix_dims = each"
@@ -118,12 +125,60 @@ def time_token_slots(args: argparse.Namespace, config, cache, data, rg: dict) ->
         )
 
 
+def _autodiff_attention_pool(tokens, kernel, bias):
+    """The translator's attention pooling as plain JAX, its gradient left to autodiff (the formulation before
+    ``talar_jax.task_language.attention_pool`` wrote its gradient out)."""
+    real = jnp.any(tokens != 0, axis=-1, keepdims=True)
+    weights = jax.nn.softmax(jnp.where(real, tokens @ kernel + bias, -1e9), axis=-2)
+    return jnp.einsum("...th,...td->...hd", weights, tokens)
+
+
+def _broadcast_receiver(receiver_params, task_language, prefixes):
+    """The receiver on [TL broadcast over tokens, prefix], one matrix per layer (the formulation before
+    ``receiver_logits_per_token`` split the first layer)."""
+    messages = jnp.broadcast_to(task_language[:, None, :], (*prefixes.shape[:-1], task_language.shape[-1]))
+    x = jnp.concatenate([messages, prefixes], axis=-1)
+    layers = receiver_params["params"]["ReluMLP_0"]
+    for i in range(len(layers)):
+        x = (jax.nn.relu(x) if i else x) @ layers[f"dense_{i}"]["kernel"] + layers[f"dense_{i}"]["bias"]
+    return x
+
+
+def time_formulations(args: argparse.Namespace, fits: dict[str, tuple], data, per_row, results: list[dict]) -> None:
+    """Adds to each row its ms per step with the formulation before: autodiff's attention pooling (translator) and
+    the broadcast receiver (the game's per-row layout), timed here beside the current ones."""
+    patches = {"translator": (task_language, "attention_pool", _autodiff_attention_pool)}
+    patches["referential game"] = (talar, "receiver_logits_per_token", _broadcast_receiver)
+    for row, (name, (fit, extra)) in zip(results, fits.items()):
+        module, attribute, reference = patches[name]
+        current = getattr(module, attribute)
+        setattr(module, attribute, reference)
+        try:  # the fit's loss reads the module attribute when traced, so a fresh trace takes the reference
+            layout = per_row if name == "referential game" else data
+            before = time_fit(fit, layout, extra, args.seeds, args.steps)
+        finally:
+            setattr(module, attribute, current)
+        key = "per_row" if name == "referential game" else "chosen"
+        row[f"{key}_before_ms_per_step"] = 1000 * before
+        print(
+            f"{args.env} {name}, {key} layout with the formulation before: {1000 * before:.1f} ms/step "
+            f"({before / (row[f'{key}_ms_per_step'] / 1000):.2f}x the current)",
+            flush=True,
+        )
+
+
 def main() -> None:
     runtime.configure()  # with the compile cache: steps are timed compile apart
     args = parse_args()
     cache = build_cache(args.env, progress=False)
-    raw_data = make_task_language_data(TaskDataset.load(args.dataset), cache, args.sentence_readout)
     config = get_recipe(args.env).talar
+    readout = args.sentence_readout or (TOKEN_READOUT if config.translator_tokens else "sentence+prefixes")
+    raw_data = make_task_language_data(TaskDataset.load(args.dataset), cache)
+    if readout == TOKEN_READOUT:  # encoded once per machine, then read from the language cache
+        tokens = readout_features(cache, readout, load_encoder(default_config(args.env).encoder))
+        raw_data = trim_token_padding(raw_data._replace(sentence_embeddings=jnp.asarray(tokens, jnp.float32)))
+    else:
+        raw_data = raw_data._replace(sentence_embeddings=jnp.asarray(cache.sentence_features(readout)))
     data = prepare_referential_data(config, raw_data)  # the recipe's game view (the translator reads the same data)
     rows = config.referential_batch_size * cache.max_tokens
     # the per-row layout: tables at least as large as a step's rows make the fits take the per-row branch
@@ -137,6 +192,7 @@ def main() -> None:
         "translator": (make_train_translator(config), (targets,)),
     }
     results = time_layouts(args, fits, data, per_row)
+    time_formulations(args, fits, data, per_row, results)
     time_prefix_dims(args, config, cache, raw_data, results[0])
     time_token_slots(args, config, cache, data, results[0])
     sizes = {
@@ -148,7 +204,7 @@ def main() -> None:
     machine = machine_info()
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
     out = RESULTS_DIR / f"supervised_layouts_{args.env}.json"
-    arguments = {**vars(args), "dataset": str(args.dataset)}
+    arguments = {**vars(args), "dataset": str(args.dataset), "sentence_readout": readout}
     payload = {"machine": machine, "args": arguments, "sizes": sizes, "rows": results}
     out.write_text(json.dumps(payload, indent=2))
     print(json.dumps(sizes))

@@ -26,6 +26,7 @@ from talar_jax.task_language import (
     Translator,
     decode_translation,
     receiver_logits_per_prefix,
+    receiver_logits_per_token,
     referential_game_loss,
     translator_loss,
     translator_nll,
@@ -388,8 +389,7 @@ def _referential_game(config: TalarConfig, vocab_size: int, max_tokens: int | No
                 params["receiver"], task_language, data.prefix_table, data.prefix_table_index[prefix]
             )
         else:
-            messages = jnp.broadcast_to(task_language[:, None, :], (*prefix.shape, task_language.shape[-1]))
-            logits = receiver.apply(params["receiver"], messages, data.prefix_embeddings[prefix])
+            logits = receiver_logits_per_token(params["receiver"], task_language, data.prefix_embeddings[prefix])
         return referential_game_loss(logits, data.prefix_next_token[prefix], mask), rows
 
     def init_params(rng: jax.Array, data: TaskLanguageData):

@@ -30,9 +30,11 @@ from talar_jax.task_language import (
     TaskLanguageGenerator,
     TaskLanguageSpec,
     Translator,
+    attention_pool,
     decode_translation,
     gumbel_softmax,
     receiver_logits_per_prefix,
+    receiver_logits_per_token,
     translator_loss,
     translator_nll,
 )
@@ -201,7 +203,8 @@ def test_token_slots_draw_each_token_with_probability_slots_over_count():
 
 
 def test_per_prefix_receiver_and_per_sentence_translator_equal_the_per_row_networks():
-    """The cheaper layouts the fits use when there are fewer distinct prefixes / sentences than rows."""
+    """The cheaper layouts the fits use: per prefix or per sentence when there are fewer distinct ones than rows, and
+    the split first layer of the receiver otherwise."""
     data, _, _, vocab = _toy_data(tuples=64)
     assert data.prefix_table.shape[0] == 5  # the empty prefix and one per goal word, deduplicated
     receiver = Receiver(vocab, (32, 16))
@@ -212,6 +215,8 @@ def test_per_prefix_receiver_and_per_sentence_translator_equal_the_per_row_netwo
     expected = receiver.apply(params, jnp.broadcast_to(message[:, None], (7, 3, 14)), data.prefix_embeddings[prefix])
     cheap = receiver_logits_per_prefix(params, message, data.prefix_table, data.prefix_table_index[prefix])
     np.testing.assert_allclose(cheap, expected, rtol=1e-5, atol=1e-5)
+    per_token = receiver_logits_per_token(params, message, data.prefix_embeddings[prefix])
+    np.testing.assert_allclose(per_token, expected, rtol=1e-5, atol=1e-5)
 
     config = TalarConfig(batch_size=128)  # 12 training sentences < 128 tuples: the per-sentence layout
     assert data.dataset_sentences.shape[0] < config.batch_size
@@ -412,3 +417,52 @@ def test_token_translator_finds_the_word_its_context_marks_where_a_mean_pool_can
             assert trim_token_padding(holder(padded)).sentence_embeddings.shape == (x.shape[0], 3, dim)
     assert accuracy[True] == 1.0, accuracy
     assert accuracy[False] <= 0.6, accuracy
+
+
+def _attention_pool_by_autodiff(tokens, kernel, bias):
+    """The pooling as plain JAX, differentiated by autodiff: the reference for ``attention_pool``'s written-out
+    gradient."""
+    real = jnp.any(tokens != 0, axis=-1, keepdims=True)
+    weights = jax.nn.softmax(jnp.where(real, tokens @ kernel + bias, -1e9), axis=-2)
+    return jnp.einsum("...th,...td->...hd", weights, tokens)
+
+
+def test_attention_pool_gradient_matches_autodiff_with_padding_and_batch_axes():
+    rng = np.random.default_rng(0)
+    tokens = rng.normal(size=(2, 3, 5, 6)).astype(np.float32)
+    tokens[:, :, 3:] = 0.0  # padding slots
+    tokens[1, 2] = 0.0  # a sentence with no token at all
+    kernel, bias = rng.normal(size=(6, 4)).astype(np.float32), rng.normal(size=4).astype(np.float32)
+    cotangent = jnp.asarray(rng.normal(size=(2, 3, 4, 6)), jnp.float32)
+    args = (jnp.asarray(tokens), jnp.asarray(kernel), jnp.asarray(bias))
+    np.testing.assert_allclose(attention_pool(*args), _attention_pool_by_autodiff(*args), rtol=1e-5, atol=1e-6)
+    grads = jax.grad(lambda *a: (attention_pool(*a) * cotangent).sum(), argnums=(0, 1, 2))(*args)
+    expected = jax.grad(lambda *a: (_attention_pool_by_autodiff(*a) * cotangent).sum(), argnums=(0, 1, 2))(*args)
+    for got, want in zip(grads, expected):
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+    assert np.abs(np.asarray(grads[1])).sum() > 0  # the scores' kernel learns
+    under_vmap = jax.vmap(lambda k: jax.grad(lambda k: (attention_pool(args[0], k, args[2]) * cotangent).sum())(k))
+    np.testing.assert_allclose(under_vmap(jnp.stack([args[1]] * 2))[1], grads[1], rtol=1e-5, atol=1e-6)
+
+
+def test_translator_scores_keep_the_dense_layers_parameters():
+    """Trained token translators (shipped agents among them) store the scores as an ``nn.Dense``'s ``Dense_0``: the
+    same tree, initialised to the same values, as a translator scoring with ``nn.Dense``."""
+    import flax.linen as nn
+
+    from talar_jax.task_language import ReluMLP
+
+    spec = TaskLanguageSpec()
+
+    class DenseScoresTranslator(nn.Module):
+        @nn.compact
+        def __call__(self, x):
+            nn.Dense(4)(x)
+            return ReluMLP((8, spec.size))(x.reshape(*x.shape[:-2], -1)[..., :20])
+
+    tokens = jnp.ones((1, 5, 5))
+    params = Translator(spec, (8,), reads_tokens=True).init(jax.random.key(3), tokens)
+    reference = DenseScoresTranslator().init(jax.random.key(3), tokens)
+    np.testing.assert_array_equal(params["params"]["Dense_0"]["kernel"], reference["params"]["Dense_0"]["kernel"])
+    np.testing.assert_array_equal(params["params"]["Dense_0"]["bias"], reference["params"]["Dense_0"]["bias"])
+    assert jax.tree.structure(params) == jax.tree.structure(reference)
