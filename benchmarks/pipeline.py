@@ -1,12 +1,13 @@
 """Wall-clock of TALAR's whole pipeline per stage and env, compile apart, beside the bare physics of its env steps.
 
-``python -m benchmarks.pipeline [--envs clevr kitchen] [--seeds 5] [--ifp-chunks 4] [--out DIR]``
+``python -m benchmarks.pipeline [--envs clevr kitchen] [--seeds 5] [--ifp-chunks 4] [--physics-seconds 30] [--out DIR]``
 
 Runs ``experiments.pipeline.run`` on each env's default configuration in a fresh folder: the oracle stage (task
 dataset), the referential game and the translator at their full default budgets, and the first ``--ifp-chunks``
 chunks of the instruction-following policy. The IFP's full-budget time is extrapolated from those chunks (their
 evaluations included, compilation apart). Beside it: the bare physics of the same env steps, i.e. the batched C
-backend stepping ``num_envs x seeds`` envs with random actions and no policy (``benchmarks.env_sps``' method).
+backend stepping ``num_envs x seeds`` envs with random actions and no policy (``benchmarks.env_sps``' method), for
+``--physics-seconds`` (30 by default: the machine's speed drifts, and a few seconds of physics moved the ratio by 5 %).
 The ratio (RG + translator + IFP) / bare physics is what the pipeline costs on top of simulating its experience;
 the target is 1.5. Prints a table and writes ``benchmarks/results/pipeline.{json,md}``.
 """
@@ -58,7 +59,7 @@ def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
     }
 
 
-def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
+def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_seconds: float = 30.0) -> dict:
     """Runs the pipeline's stages for one env and returns the per-stage timings and the bare-physics comparison."""
     base = default_config(env_name, seeds=seeds)
     sizes = derive(base.ifp)
@@ -83,9 +84,14 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path) -> dict:
     ifp_full_s = ifp["ifp_full_s_estimate"]
     batch = base.ifp.num_envs * seeds
     timed = time_backend(
-        env_name, "c", batch, BenchConfig((), (), chunk_steps=base.ifp.rollout_length), 5.0, config.env_options
+        env_name,
+        "c",
+        batch,
+        BenchConfig((), (), chunk_steps=base.ifp.rollout_length),
+        physics_seconds,
+        config.env_options,
     )
-    physics = {"sps": timed["steps_per_s"], "compile_s": timed["compile_s"], "batch": batch}
+    physics = {"sps": timed["steps_per_s"], "compile_s": timed["compile_s"], "batch": batch, "seconds": physics_seconds}
     physics_full_s = full_steps * seeds / physics["sps"]
     supervised_s = sum(
         stages[name]["seconds"] - (stages[name]["compile_s"] or 0.0)
@@ -144,13 +150,16 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5, help="seeds of each run, vmapped (default: 5)")
     parser.add_argument("--ifp-chunks", type=int, default=4, help="IFP chunks timed (the rest is extrapolated)")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default: a fresh temporary one)")
+    parser.add_argument(
+        "--physics-seconds", type=float, default=30.0, help="seconds the bare physics is timed for (default: 30)"
+    )
     args = parser.parse_args()
-    if args.seeds < 1 or args.ifp_chunks < 1:
-        parser.error("--seeds and --ifp-chunks must be >= 1")
+    if args.seeds < 1 or args.ifp_chunks < 1 or args.physics_seconds <= 0:
+        parser.error("--seeds and --ifp-chunks must be >= 1, and --physics-seconds > 0")
     out = args.out or Path(tempfile.mkdtemp(prefix="talar-pipeline-bench-"))
     rows = []
     for env_name in args.envs:
-        rows.append(measure(env_name, args.seeds, args.ifp_chunks, out))
+        rows.append(measure(env_name, args.seeds, args.ifp_chunks, out, args.physics_seconds))
         table = markdown(rows)
         machine = machine_info()
         RESULTS_DIR.mkdir(parents=True, exist_ok=True)
