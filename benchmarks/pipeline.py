@@ -31,6 +31,7 @@ from talar_jax import runtime
 from talar_jax.ppo import derive
 
 RESULTS_DIR = Path(__file__).parent / "results"
+PHYSICS_SECONDS = 30.0  # how long the bare physics is timed by default
 
 
 def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
@@ -59,7 +60,7 @@ def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
     }
 
 
-def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_seconds: float = 30.0) -> dict:
+def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_seconds: float = PHYSICS_SECONDS) -> dict:
     """Runs the pipeline's stages for one env and returns the per-stage timings and the bare-physics comparison."""
     base = default_config(env_name, seeds=seeds)
     sizes = derive(base.ifp)
@@ -151,7 +152,10 @@ def main() -> None:
     parser.add_argument("--ifp-chunks", type=int, default=4, help="IFP chunks timed (the rest is extrapolated)")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default: a fresh temporary one)")
     parser.add_argument(
-        "--physics-seconds", type=float, default=30.0, help="seconds the bare physics is timed for (default: 30)"
+        "--physics-seconds",
+        type=float,
+        default=PHYSICS_SECONDS,
+        help=f"seconds the bare physics is timed for (default: {PHYSICS_SECONDS:g})",
     )
     args = parser.parse_args()
     if args.seeds < 1 or args.ifp_chunks < 1 or args.physics_seconds <= 0:

@@ -29,7 +29,7 @@ from benchmarks.machine import machine_info
 from envs.runtime import program_compiler_options
 from experiments.cli import ArgumentParser
 from experiments.config import default_config
-from experiments.recipes import get_recipe
+from experiments.methods.base import translator_readout
 from talar_jax import runtime, talar, task_language
 from talar_jax.dataset import TaskDataset
 from talar_jax.language import TOKEN_READOUT, build_cache, load_encoder, readout_features
@@ -128,7 +128,7 @@ def time_token_slots(args: argparse.Namespace, config, cache, data, rg: dict) ->
         )
 
 
-def _autodiff_attention_pool(tokens, kernel, bias):
+def autodiff_attention_pool(tokens, kernel, bias):
     """The translator's attention pooling as plain JAX, its gradient left to autodiff (the formulation before
     ``talar_jax.task_language.attention_pool`` wrote its gradient out)."""
     real = jnp.any(tokens != 0, axis=-1, keepdims=True)
@@ -150,18 +150,18 @@ def _broadcast_receiver(receiver_params, task_language, prefixes):
 def time_formulations(args: argparse.Namespace, fits: dict[str, tuple], data, per_row, results: list[dict]) -> None:
     """Adds to each row its ms per step with the formulation before: autodiff's attention pooling (translator) and
     the broadcast receiver (the game's per-row layout), timed here beside the current ones."""
-    patches = {"translator": (task_language, "attention_pool", _autodiff_attention_pool)}
-    patches["referential game"] = (talar, "receiver_logits_per_token", _broadcast_receiver)
+    patches = {  # fit -> (module, attribute, the formulation before, the layout it was timed in)
+        "translator": (task_language, "attention_pool", autodiff_attention_pool, "chosen"),
+        "referential game": (talar, "receiver_logits_per_token", _broadcast_receiver, "per_row"),
+    }
     for row, (name, (fit, extra)) in zip(results, fits.items()):
-        module, attribute, reference = patches[name]
+        module, attribute, reference, key = patches[name]
         current = getattr(module, attribute)
         setattr(module, attribute, reference)
         try:  # the fit's loss reads the module attribute when traced, so a fresh trace takes the reference
-            layout = per_row if name == "referential game" else data
-            before = time_fit(fit, layout, extra, args.seeds, args.steps)
+            before = time_fit(fit, per_row if key == "per_row" else data, extra, args.seeds, args.steps)
         finally:
             setattr(module, attribute, current)
-        key = "per_row" if name == "referential game" else "chosen"
         row[f"{key}_before_ms_per_step"] = 1000 * before
         print(
             f"{args.env} {name}, {key} layout with the formulation before: {1000 * before:.1f} ms/step "
@@ -174,14 +174,13 @@ def main() -> None:
     runtime.configure()  # with the compile cache: steps are timed compile apart
     args = parse_args()
     cache = build_cache(args.env, progress=False)
-    config = get_recipe(args.env).talar
-    readout = args.sentence_readout or (TOKEN_READOUT if config.translator_tokens else "sentence+prefixes")
+    experiment = default_config(args.env)
+    config = experiment.talar
+    readout = args.sentence_readout or translator_readout(experiment)
+    encoder = load_encoder(experiment.encoder) if readout == TOKEN_READOUT else None
+    features = readout_features(cache, readout, encoder)  # token states: encoded once per machine, then cached
     raw_data = make_task_language_data(TaskDataset.load(args.dataset), cache)
-    if readout == TOKEN_READOUT:  # encoded once per machine, then read from the language cache
-        tokens = readout_features(cache, readout, load_encoder(default_config(args.env).encoder))
-        raw_data = trim_token_padding(raw_data._replace(sentence_embeddings=jnp.asarray(tokens, jnp.float32)))
-    else:
-        raw_data = raw_data._replace(sentence_embeddings=jnp.asarray(cache.sentence_features(readout)))
+    raw_data = trim_token_padding(raw_data._replace(sentence_embeddings=jnp.asarray(features, jnp.float32)))
     data = prepare_referential_data(config, raw_data)  # the recipe's game view (the translator reads the same data)
     rows = config.referential_batch_size * cache.max_tokens
     # the per-row layout: tables at least as large as a step's rows make the fits take the per-row branch

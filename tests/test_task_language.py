@@ -9,6 +9,7 @@ import numpy as np
 import optax
 import pytest
 
+from benchmarks.supervised_layouts import autodiff_attention_pool
 from talar_jax.optim import AdamFit, fit_seeds
 from talar_jax.talar import (
     TalarConfig,
@@ -419,14 +420,6 @@ def test_token_translator_finds_the_word_its_context_marks_where_a_mean_pool_can
     assert accuracy[False] <= 0.6, accuracy
 
 
-def _attention_pool_by_autodiff(tokens, kernel, bias):
-    """The pooling as plain JAX, differentiated by autodiff: the reference for ``attention_pool``'s written-out
-    gradient."""
-    real = jnp.any(tokens != 0, axis=-1, keepdims=True)
-    weights = jax.nn.softmax(jnp.where(real, tokens @ kernel + bias, -1e9), axis=-2)
-    return jnp.einsum("...th,...td->...hd", weights, tokens)
-
-
 def test_attention_pool_gradient_matches_autodiff_with_padding_and_batch_axes():
     rng = np.random.default_rng(0)
     tokens = rng.normal(size=(2, 3, 5, 6)).astype(np.float32)
@@ -435,9 +428,9 @@ def test_attention_pool_gradient_matches_autodiff_with_padding_and_batch_axes():
     kernel, bias = rng.normal(size=(6, 4)).astype(np.float32), rng.normal(size=4).astype(np.float32)
     cotangent = jnp.asarray(rng.normal(size=(2, 3, 4, 6)), jnp.float32)
     args = (jnp.asarray(tokens), jnp.asarray(kernel), jnp.asarray(bias))
-    np.testing.assert_allclose(attention_pool(*args), _attention_pool_by_autodiff(*args), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(attention_pool(*args), autodiff_attention_pool(*args), rtol=1e-5, atol=1e-6)
     grads = jax.grad(lambda *a: (attention_pool(*a) * cotangent).sum(), argnums=(0, 1, 2))(*args)
-    expected = jax.grad(lambda *a: (_attention_pool_by_autodiff(*a) * cotangent).sum(), argnums=(0, 1, 2))(*args)
+    expected = jax.grad(lambda *a: (autodiff_attention_pool(*a) * cotangent).sum(), argnums=(0, 1, 2))(*args)
     for got, want in zip(grads, expected):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
     assert np.abs(np.asarray(grads[1])).sum() > 0  # the scores' kernel learns
