@@ -54,39 +54,57 @@ BENCH_CONFIGS: dict[str, BenchConfig] = {
 }
 
 
+class PhysicsClock:
+    """``batch`` training-wrapped envs stepped with random actions in jitted chunks of ``config.chunk_steps`` (compiled
+    and warmed up once), timed in as many windows as asked: a benchmark can interleave them with the work it compares
+    against, so that the machine's drift falls on both sides."""
+
+    def __init__(
+        self, name: str, physics: str, batch: int, config: BenchConfig, env_options: dict | None = None
+    ) -> None:
+        env = envs.wrap_for_training(envs.make(name, physics=physics, **(env_options or {})))
+
+        def init(key):
+            return jax.vmap(env.reset)(jax.random.split(key, batch))
+
+        def chunk(state, key):
+            actions = random_actions(env.action_spec, key, (config.chunk_steps, batch))
+            state, _ = jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), state, actions)
+            return state
+
+        key = jax.random.key(0)
+        start = time.perf_counter()
+        init_jit = jax.jit(init).lower(key).compile()
+        self._state = init_jit(key)
+        self._chunk = jax.jit(chunk).lower(self._state, key).compile()
+        self.compile_s = time.perf_counter() - start
+        self._state = jax.block_until_ready(self._chunk(self._state, jax.random.key(1)))  # warm-up
+        self._calls = 0
+        self.steps_per_call = config.chunk_steps * batch
+
+    def time(self, min_seconds: float) -> tuple[int, float]:
+        """Steps chunks for at least ``min_seconds`` (one at least); returns (env steps, seconds)."""
+        calls, start = 0, time.perf_counter()
+        while calls == 0 or time.perf_counter() - start < min_seconds:
+            self._state = self._chunk(self._state, jax.random.key(2 + self._calls))
+            jax.block_until_ready(self._state)
+            calls += 1
+            self._calls += 1
+        return calls * self.steps_per_call, time.perf_counter() - start
+
+
 def time_backend(
     name: str, physics: str, batch: int, config: BenchConfig, min_seconds: float, env_options: dict | None = None
 ) -> dict:
     """Steady-state env steps/s of ``batch`` training-wrapped envs with random actions (compile time apart)."""
-    env = envs.wrap_for_training(envs.make(name, physics=physics, **(env_options or {})))
-
-    def init(key):
-        return jax.vmap(env.reset)(jax.random.split(key, batch))
-
-    def chunk(state, key):
-        actions = random_actions(env.action_spec, key, (config.chunk_steps, batch))
-        state, _ = jax.lax.scan(lambda s, a: (jax.vmap(env.step)(s, a), None), state, actions)
-        return state
-
-    key = jax.random.key(0)
-    start = time.perf_counter()
-    init_jit = jax.jit(init).lower(key).compile()
-    state = init_jit(key)
-    chunk_jit = jax.jit(chunk).lower(state, key).compile()
-    compile_s = time.perf_counter() - start
-    state = jax.block_until_ready(chunk_jit(state, jax.random.key(1)))  # warm-up
-    calls, start = 0, time.perf_counter()
-    while calls == 0 or time.perf_counter() - start < min_seconds:
-        state = chunk_jit(state, jax.random.key(2 + calls))
-        jax.block_until_ready(state)
-        calls += 1
-    elapsed = time.perf_counter() - start
+    clock = PhysicsClock(name, physics, batch, config, env_options)
+    steps, elapsed = clock.time(min_seconds)
     return {
         "backend": physics,
         "batch": batch,
-        "steps_per_s": calls * config.chunk_steps * batch / elapsed,
-        "compile_s": compile_s,
-        "timed_env_steps": calls * config.chunk_steps * batch,
+        "steps_per_s": steps / elapsed,
+        "compile_s": clock.compile_s,
+        "timed_env_steps": steps,
     }
 
 

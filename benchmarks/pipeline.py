@@ -7,22 +7,31 @@ dataset), the referential game and the translator at their full default budgets,
 chunks of the instruction-following policy. The IFP's full-budget time is extrapolated from those chunks (their
 evaluations included, compilation apart). Beside it: the bare physics of the same env steps, i.e. the batched C
 backend stepping ``num_envs x seeds`` envs with random actions and no policy (``benchmarks.env_sps``' method), for
-``--physics-seconds`` (30 by default: the machine's speed drifts, and a few seconds of physics moved the ratio by 5 %).
-The ratio (RG + translator + IFP) / bare physics is what the pipeline costs on top of simulating its experience;
-the target is 1.5. Prints a table and writes ``benchmarks/results/pipeline.{json,md}``.
+``--physics-seconds`` in all (30 by default), split into windows between the stages: before the referential game,
+the translator and the policy stage, and after the policy stage. This machine's speed drifts by 20-30 % over
+minutes; physics timed once, minutes away from the stages, moved the ratio by about 5 % between runs, and the
+windows' spread is printed to show the drift. The ratio (RG + translator + IFP) / bare physics is what the pipeline
+costs on top of simulating its experience; the target is 1.5. Prints a table and writes
+``benchmarks/results/pipeline.{json,md}``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 
-from benchmarks.env_sps import BenchConfig, time_backend
+import experiments.methods.talar
+import experiments.methods.translation
+import experiments.pipeline
+from benchmarks.env_sps import BenchConfig, PhysicsClock
 from benchmarks.machine import machine_info
 from experiments.cli import ArgumentParser
 from experiments.config import default_config
@@ -31,7 +40,8 @@ from talar_jax import runtime
 from talar_jax.ppo import derive
 
 RESULTS_DIR = Path(__file__).parent / "results"
-PHYSICS_SECONDS = 30.0  # how long the bare physics is timed by default
+PHYSICS_SECONDS = 30.0  # how long the bare physics is timed by default, all windows together
+PHYSICS_WINDOWS = 4  # before the referential game, the translator and the policy stage; after the policy stage
 
 
 def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
@@ -60,6 +70,37 @@ def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
     }
 
 
+@contextlib.contextmanager
+def physics_between_stages(clock: PhysicsClock, window_s: float) -> Iterator[list[dict]]:
+    """While active, a window of the bare physics runs before each supervised stage and before and after the policy
+    stage (``experiments.pipeline.run``'s own calls, wrapped where the methods look them up); yields the windows."""
+    windows: list[dict] = []
+
+    def window(label: str) -> None:
+        steps, seconds = clock.time(window_s)
+        windows.append({"before": label, "env_steps": steps, "seconds": seconds, "sps": steps / seconds})
+
+    def timed_stage(real):
+        def run_stage(run_dir, name, *args, **kwargs):
+            window(name)
+            return real(run_dir, name, *args, **kwargs)
+
+        return run_stage
+
+    def timed_ifp(config, setup, env):
+        window("ifp")
+        result = real_ifp(config, setup, env)
+        window("end")
+        return result
+
+    real_ifp = experiments.pipeline.stage_ifp
+    with contextlib.ExitStack() as stack:
+        for module in (experiments.methods.talar, experiments.methods.translation):
+            stack.enter_context(mock.patch.object(module, "run_stage", timed_stage(module.run_stage)))
+        stack.enter_context(mock.patch.object(experiments.pipeline, "stage_ifp", timed_ifp))
+        yield windows
+
+
 def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_seconds: float = PHYSICS_SECONDS) -> dict:
     """Runs the pipeline's stages for one env and returns the per-stage timings and the bare-physics comparison."""
     base = default_config(env_name, seeds=seeds)
@@ -67,8 +108,12 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_secon
     full_steps = base.ifp.total_env_steps
     ran_steps = ifp_chunks * sizes.env_steps_per_chunk
     config = dataclasses.replace(base, out=out / env_name, ifp=dataclasses.replace(base.ifp, total_env_steps=ran_steps))
+    batch = base.ifp.num_envs * seeds
+    physics_config = BenchConfig((), (), chunk_steps=base.ifp.rollout_length)
+    clock = PhysicsClock(env_name, "c", batch, physics_config, config.env_options)
     start = time.perf_counter()
-    summary = run(config)
+    with physics_between_stages(clock, physics_seconds / PHYSICS_WINDOWS) as windows:
+        summary = run(config)
     total_s = time.perf_counter() - start
     stage_seconds = summary["stage_seconds"]
     stages = {}
@@ -83,16 +128,15 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_secon
     stages["ifp"]["compile_s"] = ifp_compile
     ifp = _ifp_full_budget(metrics, base.ifp, seeds)
     ifp_full_s = ifp["ifp_full_s_estimate"]
-    batch = base.ifp.num_envs * seeds
-    timed = time_backend(
-        env_name,
-        "c",
-        batch,
-        BenchConfig((), (), chunk_steps=base.ifp.rollout_length),
-        physics_seconds,
-        config.env_options,
-    )
-    physics = {"sps": timed["steps_per_s"], "compile_s": timed["compile_s"], "batch": batch, "seconds": physics_seconds}
+    rates = [w["sps"] for w in windows]
+    physics = {
+        "sps": sum(w["env_steps"] for w in windows) / sum(w["seconds"] for w in windows),
+        "compile_s": clock.compile_s,
+        "batch": batch,
+        "seconds": sum(w["seconds"] for w in windows),
+        "windows": windows,
+        "window_sps_spread": max(rates) / min(rates) - 1.0,
+    }
     physics_full_s = full_steps * seeds / physics["sps"]
     supervised_s = sum(
         stages[name]["seconds"] - (stages[name]["compile_s"] or 0.0)
@@ -129,15 +173,15 @@ def markdown(rows: list[dict]) -> str:
     lines += [
         "",
         "| env | seeds | RG + translator s (no compile) | IFP s at full budget (est.) | of which evaluation | "
-        "whole pipeline s | bare C physics s, same env steps | ratio |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        "whole pipeline s | bare C physics s, same env steps | physics windows' spread | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for row in rows:
         lines.append(
             f"| {row['env']} | {row['seeds']} | {row['supervised_s']:.0f} | {row['ifp_full_s_estimate']:.0f} | "
             f"{row['ifp_eval_full_s_estimate']:.0f} ({100 * row['ifp_eval_share']:.0f} %) | "
             f"{row['pipeline_full_s_estimate']:.0f} | {row['bare_physics_full_s']:.0f} | "
-            f"{row['ratio_to_bare_physics']:.2f} |"
+            f"{100 * row['bare_physics']['window_sps_spread']:.0f} % | {row['ratio_to_bare_physics']:.2f} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -1,6 +1,7 @@
 """The speed benchmarks' arithmetic: the learner's FLOP count, and the pipeline's full-budget estimate."""
 
 import dataclasses
+from unittest import mock
 
 from benchmarks.policy_stage import learning_flops_per_update
 from talar_jax.ppo import PPOConfig
@@ -28,3 +29,37 @@ def test_pipeline_estimate_adds_the_curves_evaluations_and_the_final_one():
     assert estimate["ifp_evaluations_full"] == 3
     assert estimate["ifp_eval_full_s_estimate"] == 2 * 2.0 + 8.0
     assert estimate["ifp_full_s_estimate"] == 10.0 + 12.0
+
+
+def test_pipeline_times_physics_windows_between_the_stages_and_restores_them():
+    import experiments.methods.talar as talar_method
+    import experiments.methods.translation as translation
+    import experiments.pipeline as pipeline
+    from benchmarks.pipeline import physics_between_stages
+
+    class FakeClock:
+        def __init__(self):
+            self.asked = []
+
+        def time(self, seconds):
+            self.asked.append(seconds)
+            return 100, 2.0
+
+    calls = []
+    real = (talar_method.run_stage, translation.run_stage, pipeline.stage_ifp)
+    clock = FakeClock()
+    with (
+        mock.patch.object(talar_method, "run_stage", lambda run_dir, name, *a, **k: calls.append(name)),
+        mock.patch.object(translation, "run_stage", lambda run_dir, name, *a, **k: calls.append(name)),
+        mock.patch.object(pipeline, "stage_ifp", lambda config, setup, env: calls.append("ifp")),
+    ):
+        inner = (talar_method.run_stage, translation.run_stage, pipeline.stage_ifp)
+        with physics_between_stages(clock, 7.5) as windows:
+            talar_method.run_stage("out", "talar/task_language", "key", None)
+            translation.run_stage("out", "talar/translator", "key", None)
+            pipeline.stage_ifp(None, None, None)
+        assert (talar_method.run_stage, translation.run_stage, pipeline.stage_ifp) == inner
+    assert (talar_method.run_stage, translation.run_stage, pipeline.stage_ifp) == real
+    assert calls == ["talar/task_language", "talar/translator", "ifp"]
+    assert [w["before"] for w in windows] == ["talar/task_language", "talar/translator", "ifp", "end"]
+    assert clock.asked == [7.5] * 4 and all(w["sps"] == 50.0 for w in windows)
