@@ -41,7 +41,8 @@ from talar_jax.ppo import derive
 
 RESULTS_DIR = Path(__file__).parent / "results"
 PHYSICS_SECONDS = 30.0  # how long the bare physics is timed by default, all windows together
-PHYSICS_WINDOWS = 4  # before the referential game, the translator and the policy stage; after the policy stage
+# where the physics windows fall: before the referential game, the translator and the policy stage; after the policy
+WINDOWS = ("talar/task_language", "talar/translator", "ifp", "end")
 
 
 def _ifp_full_budget(metrics: list[dict], ppo, seeds: int) -> dict:
@@ -112,9 +113,12 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_secon
     physics_config = BenchConfig((), (), chunk_steps=base.ifp.rollout_length)
     clock = PhysicsClock(env_name, "c", batch, physics_config, config.env_options)
     start = time.perf_counter()
-    with physics_between_stages(clock, physics_seconds / PHYSICS_WINDOWS) as windows:
+    with physics_between_stages(clock, physics_seconds / len(WINDOWS)) as windows:
         summary = run(config)
     total_s = time.perf_counter() - start
+    placed = tuple(w["before"] for w in windows)
+    if placed != WINDOWS:
+        raise SystemExit(f"benchmarks.pipeline: physics windows fell before {placed}, not {WINDOWS}")
     stage_seconds = summary["stage_seconds"]
     stages = {}
     for name, seconds in stage_seconds.items():
