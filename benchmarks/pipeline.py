@@ -132,12 +132,12 @@ def measure(env_name: str, seeds: int, ifp_chunks: int, out: Path, physics_secon
     stages["ifp"]["compile_s"] = ifp_compile
     ifp = _ifp_full_budget(metrics, base.ifp, seeds)
     ifp_full_s = ifp["ifp_full_s_estimate"]
-    rates = [w["sps"] for w in windows]
+    rates, seconds = [w["sps"] for w in windows], sum(w["seconds"] for w in windows)
     physics = {
-        "sps": sum(w["env_steps"] for w in windows) / sum(w["seconds"] for w in windows),
+        "sps": sum(w["env_steps"] for w in windows) / seconds,
         "compile_s": clock.compile_s,
         "batch": batch,
-        "seconds": sum(w["seconds"] for w in windows),
+        "seconds": seconds,
         "windows": windows,
         "window_sps_spread": max(rates) / min(rates) - 1.0,
     }
