@@ -46,7 +46,7 @@ from talar_jax.encodings import (
     EncodingError,
     make_encoding,
 )
-from talar_jax.language import build_cache, load_encoder, readout_features, sentence_features
+from talar_jax.language import build_cache, load_encoder, readout_features, sentence_features, stack_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
 from talar_jax.report import LANGUAGE_RECORD
 
@@ -242,7 +242,7 @@ class Agent:
         # sentences of the instruction file: exactly the features the run's stages read (loaded at construction)
         cached = self.cache_features()
         fresh_rows = {sentence: index for index, sentence in enumerate(fresh)}
-        return np.stack([cached[rows[s]] if s in rows else computed[fresh_rows[s]] for s in sentences]).astype(
+        return stack_features([cached[rows[s]] if s in rows else computed[fresh_rows[s]] for s in sentences]).astype(
             np.float32
         )
 

@@ -11,8 +11,10 @@ from talar_jax.language.cache import (
     build_cache,
     cached_sentence_features,
     default_cache_dir,
+    max_word_pieces,
     readout_features,
     sentence_features,
+    stack_features,
 )
 from talar_jax.language.encoder import BertEncoder, EncoderError, default_encoder_path, load_encoder
 from talar_jax.language.instructions import (
@@ -40,6 +42,7 @@ __all__ = [
     "build_cache",
     "cached_sentence_features",
     "default_cache_dir",
+    "max_word_pieces",
     "default_encoder_path",
     "load_encoder",
     "load_instructions",
@@ -49,4 +52,5 @@ __all__ = [
     "register_instruction_format",
     "readout_features",
     "sentence_features",
+    "stack_features",
 ]

@@ -55,7 +55,8 @@ TOKEN_READOUT = "tokens"
 the sentence's [SEP]; the translator pools it with attention (``Translator(reads_tokens=True)``)."""
 TOKEN_SLOTS = 32
 """Word pieces the token readout holds per sentence, [CLS] and [SEP] included (CLEVR and kitchen instructions have at
-most 24); a longer sentence is refused with a one-line error."""
+most 24). A batch holding a longer sentence is read at that sentence's width instead (the translator's attention
+pooling masks padding, so width does not change what it reads); only the encoder's position limit bounds a sentence."""
 TRANSLATOR_READOUTS: tuple[str, ...] = (*SENTENCE_READOUTS, TOKEN_READOUT)
 
 
@@ -191,7 +192,7 @@ def sentence_features(
 
     Raises:
         ValueError: an unknown readout, a sentence without tokens (empty or only characters the encoder drops), or
-            (``"tokens"``) one longer than ``TOKEN_SLOTS`` word pieces.
+            one longer than the encoder's positions (``max_word_pieces``).
     """
     if readout not in TRANSLATOR_READOUTS:
         raise ValueError(f"unknown sentence readout {readout!r}; valid: {', '.join(TRANSLATOR_READOUTS)}")
@@ -199,14 +200,15 @@ def sentence_features(
     for sentence, tokens in zip(sentences, pieces, strict=True):
         if not tokens:
             raise ValueError(f"sentence {sentence!r} has no words the encoder {encoder.name} can read")
-        if readout == TOKEN_READOUT and len(tokens) + 2 > TOKEN_SLOTS:
+        if len(tokens) > max_word_pieces(encoder):
             raise ValueError(
-                f"sentence {sentence!r} has {len(tokens)} word pieces; the token readout reads at most "
-                f"{TOKEN_SLOTS - 2}: shorten it"
+                f"a sentence of {len(tokens)} word pieces is longer than the {max_word_pieces(encoder)} the encoder "
+                f"{encoder.name} reads: split it into shorter sentences"
             )
     full = [encoder.with_specials(tokens) for tokens in pieces]
     if readout == TOKEN_READOUT:  # float16 values, as the cache stores them: fresh and cached features agree
-        states = encoder.token_states(full, TOKEN_SLOTS, batch_size=batch_size, progress=progress)
+        width = max([TOKEN_SLOTS, *(len(tokens) for tokens in full)])
+        states = encoder.token_states(full, width, batch_size=batch_size, progress=progress)
         return states.astype(np.float16).astype(np.float32)
     if readout == "sentence":
         return encoder.embed_sequences(full, batch_size=batch_size, progress=progress, description=description)
@@ -219,6 +221,20 @@ def sentence_features(
     prefixes = embeddings[len(full) :]
     means = np.stack([prefixes[rows].mean(0) for rows in prefix_rows])
     return np.concatenate([embeddings[: len(full)], means], axis=1).astype(np.float32)
+
+
+def max_word_pieces(encoder: BertEncoder) -> int:
+    """The longest sentence ``encoder`` reads, in word pieces: its positions less [CLS] and [SEP]."""
+    return encoder.config.max_position_embeddings - 2
+
+
+def stack_features(rows: Sequence[np.ndarray]) -> np.ndarray:
+    """Stacks per-sentence features; token-state rows (T, D) of different widths are zero-padded to the widest, which
+    the attention pooling reads as padding (sentence rows (F,) stack as they are)."""
+    width = max(row.shape[0] for row in rows) if rows and rows[0].ndim == 2 else None
+    if width is None:
+        return np.stack(rows)
+    return np.stack([np.pad(row, ((0, width - row.shape[0]), (0, 0))) for row in rows])
 
 
 def cached_sentence_features(
