@@ -66,7 +66,12 @@ def plot_learning_curves(
     if per_goal is not None:
         ax = axes[0][-1]
         for goal, name in enumerate(per_goal.names):
-            ax.plot(per_goal.env_steps, np.asarray(per_goal.success, float)[:, goal] * 100, label=name)
+            ax.plot(
+                per_goal.env_steps,
+                np.asarray(per_goal.success, float)[:, goal] * 100,
+                label=name,
+                **_points(per_goal.env_steps),
+            )
         ax.set_title(f"per goal, pooled over seeds ({per_goal.split} instructions)")
         ax.set_xlabel("env steps")
         ax.set_ylabel("success rate (%)")
@@ -79,7 +84,7 @@ def plot_learning_curves(
                 continue
             rates = np.asarray(curve.success[split], float) * 100
             mean, std = rates.mean(0), rates.std(0)
-            (line,) = ax.plot(curve.env_steps, mean, label=method)
+            (line,) = ax.plot(curve.env_steps, mean, label=method, **_points(curve.env_steps))
             ax.fill_between(curve.env_steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         ax.set_title(f"{title} ({split} instructions)".strip())
         ax.set_xlabel("env steps")
@@ -88,6 +93,12 @@ def plot_learning_curves(
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     return _save(fig, path, dpi=120)
+
+
+def _points(env_steps) -> dict:
+    """Markers on a curve of few evaluations: a line through one point draws nothing, and a short run's curves (a
+    ``--quick`` run evaluates once or twice) would look empty."""
+    return {"marker": "o", "markersize": 4} if len(env_steps) <= 20 else {}
 
 
 def _save(fig, path: str | Path, dpi: int) -> Path:

@@ -1,5 +1,7 @@
 """Run reports: learning-curve and t-SNE figures are written, the results table shows mean ± std."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,23 @@ def test_learning_curve_and_tsne_figures(tmp_path):
     # A collapsed encoding (every vector identical) must still plot (it crashed sklearn's t-SNE before).
     path = plot_tsne(np.ones((40, 14)), np.repeat(np.arange(4), 10), tmp_path / "collapsed.png")
     assert path.stat().st_size > 1000
+
+
+def test_a_curve_of_one_evaluation_is_drawn_with_markers(tmp_path, monkeypatch):
+    """A --quick run evaluates once: a line through one point draws nothing, so few points get markers."""
+    from talar_jax import report
+
+    figures = []
+    monkeypatch.setattr(report, "_save", lambda fig, path, dpi: figures.append(fig) or Path(path))
+    one = LearningCurve(np.array([1000]), {"train": np.array([[0.5], [0.7]])})
+    goals = report.GoalCurves(np.array([1000]), np.array([[0.5, 1.0]]), ["a", "b"])
+    plot_learning_curves({"TALAR": one}, tmp_path / "one.png", per_goal=goals)
+    long = LearningCurve(np.arange(100), {"train": np.zeros((2, 100))})
+    plot_learning_curves({"TALAR": long}, tmp_path / "long.png")
+    one_fig, long_fig = figures
+    lines = [line for ax in one_fig.axes for line in ax.get_lines()]
+    assert len(lines) == 3 and all(line.get_marker() == "o" for line in lines)
+    assert [line.get_marker() for line in long_fig.axes[0].get_lines()] == ["None"]
 
 
 def test_tsne_grid_rows_share_one_projection_per_representation(tmp_path):
