@@ -4,7 +4,7 @@
 
 RUN_DIR is an ``experiments.clevr`` / ``experiments.kitchen`` run (its root or method folder) whose encoding can
 read sentences; only the encoding's stage must be finished (for TALAR: the translator stage). The sets, their halves
-and the fit are ``talar_jax.calibration``'s: the run's training and test instructions, the development phrasings
+and the fit are ``talar_jax.confidence.fit``'s: the run's training and test instructions, the development phrasings
 (``--development``), and the sentences of ``--data`` that name no goal, near misses and ambiguous sentences, every
 seed of the run acting in turn. The calibration is written to ``confidence.json`` in the method folder (``--out``
 elsewhere), with a single-seed calibration inside for agents holding one seed's encoding; ``--study`` also fits and
@@ -21,15 +21,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tyro
 
+import envs
 from experiments.calibration_tables import report_text
-from experiments.cli import output_path_problem, write_output
-from experiments.instruct import agent_command
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, write_output
 from experiments.recipes import get_recipe
 from talar_jax import runtime
-from talar_jax.agent import AgentError, find_method_folder, read_encoding
-from talar_jax.calibration import (
+from talar_jax.agent import (
+    CONFIDENCE_FILE,
+    AgentError,
+    find_method_folder,
+    read_config,
+    read_encoding,
+    read_encoding_params,
+)
+from talar_jax.checkpoint import write_json_atomic
+from talar_jax.confidence import Calibration, Measures, Understanding
+from talar_jax.confidence.fit import (
     ALL,
     CALIBRATION,
     SETS,
@@ -39,25 +47,32 @@ from talar_jax.calibration import (
     group_halves,
     half,
     held_out_figures,
-    measure_sentences,
     meets_targets,
     with_single_seed,
 )
-from talar_jax.confidence import CONFIDENCE_FILE, Calibration
 from talar_jax.encodings import ENCODING_FILE, EncodingArtifact, EncodingError
-from talar_jax.language import DEVELOPMENT_FILE, load_instructions, load_user_instructions
+from talar_jax.language import (
+    DEVELOPMENT_FILE,
+    build_cache,
+    cached_sentence_features,
+    load_encoder,
+    load_instructions,
+    load_user_instructions,
+    readout_features,
+)
 from talar_jax.provenance import git_commit
 
 ABSTENTION_FILE = Path(__file__).resolve().parent.parent / "talar_jax" / "language" / "data" / "abstention.json"
 """Sentences that name no goal, near misses and ambiguous sentences, per env (``{"<env>": {"no_goal": {"<category>":
 [...]}, "near_miss": [...], "ambiguous": [{"sentence": ..., "goals": ...}]}}``; kitchen goals are sub-task names,
-CLEVR goals a filter ``{"subject": [colours], "relation": [front|behind|left|right], "object": [colours]}``, a
-missing key meaning any)."""
+CLEVR goals a filter ``{"subject": [colours], "relation": [front|behind|left|right], "object": [colours]}`` on the
+words the env's instruction format fills its patterns with (a relation named by a word of its phrase), a missing key
+meaning any)."""
 
 
 @dataclasses.dataclass(frozen=True)
 class CalibrateArgs:
-    run_dir: tyro.conf.Positional[Path]
+    run_dir: Path = dataclasses.field(metadata=POSITIONAL)
     """A run folder (``runs/kitchen`` or a method folder such as ``runs/kitchen/talar``)."""
     out: Path | None = None
     """Where to write the calibration (default: ``confidence.json`` in the run's method folder)."""
@@ -90,16 +105,8 @@ def run_encoding(folder: Path) -> EncodingArtifact:
     from experiments.methods import get_method
     from experiments.reports import config_from_json
 
-    config = config_from_json(json.loads((folder / "config.json").read_text()))
+    config = config_from_json(read_config(folder))
     return get_method(config.method).encoding(config, len(get_recipe(config.env).goal_names()))
-
-
-def policy_params_if_needed(folder: Path, artifact: EncodingArtifact):
-    if artifact.params is None or artifact.params.source == "file":
-        return None
-    from talar_jax.agent import _latest_policy_params
-
-    return _latest_policy_params(folder / "ifp" / "ppo")
 
 
 def method_folder(run_dir: Path) -> Path:
@@ -129,19 +136,22 @@ def meant_goals(env: str, spec: Any, names: list[str]) -> tuple[int, ...]:
             raise ValueError(f"unknown goals {unknown} in {ABSTENTION_FILE.name}; valid: {', '.join(names)}")
         return tuple(lowered.index(str(g).lower()) for g in spec)
     if isinstance(spec, dict) and env.startswith("clevr"):
-        from envs.clevr.tasks import COLORS, GOAL_DESTINATION, GOAL_RELATION, GOAL_SOURCE, NUM_GOALS, RELATIONS
-
-        relation_names = [r[0] for r in RELATIONS]
-        keep = np.ones(NUM_GOALS, bool)
-        for key, table, vocabulary in (
-            ("subject", GOAL_SOURCE, COLORS),
-            ("object", GOAL_DESTINATION, COLORS),
-            ("relation", GOAL_RELATION, relation_names),
-        ):
-            if key in spec:
-                wanted = [vocabulary.index(v) for v in spec[key]]
-                keep &= np.isin(table, wanted)
-        return tuple(int(g) for g in np.flatnonzero(keep))
+        unknown = set(spec) - {"subject", "relation", "object"}
+        if unknown:
+            raise ValueError(f"unknown keys {sorted(unknown)} in a {env} goal filter of {ABSTENTION_FILE.name}")
+        # Each goal's words, as the env's instruction format fills a pattern of its three placeholders.
+        probe = {"clevr_patterns": ["{subject}|{relation}|{object}"]}
+        fillings, goals = envs.instruction_format(env).read_user(probe, ABSTENTION_FILE)
+        meant = []
+        for filling, goal in zip(fillings, goals, strict=True):
+            subject, relation, object_ = filling.split("|")
+            if (
+                subject in spec.get("subject", [subject])
+                and object_ in spec.get("object", [object_])
+                and any(word in relation.split() for word in spec.get("relation", relation.split()))
+            ):
+                meant.append(int(goal))
+        return tuple(meant)
     raise ValueError(f"cannot read the goals {spec!r} of an ambiguous {env} sentence")
 
 
@@ -195,17 +205,48 @@ SINGLE_SEED = "familiarity + own posterior (1 seed)"
 
 
 # --- the command -------------------------------------------------------------------------------------------------
-def measure_run(folder: Path, sentences: SentenceSet):
-    """Every seed's measures of every sentence (``talar_jax.calibration.measure_sentences``) and the run's
-    description; the encoding comes from the run's record, or its method's registration."""
+def measure_run(folder: Path, sentences: SentenceSet) -> tuple[Measures, dict]:
+    """Every seed's measures of every sentence of a run (its method folder), and the run's description (its seeds'
+    goals with a code of their own among them). The encoding comes from the run's record, or its method's
+    registration."""
     try:
         artifact = run_encoding(folder)
     except (EncodingError, KeyError, ValueError) as error:
         raise AgentError(f"cannot read the encoding of {folder}: {error}") from None
+    if not artifact.readable:
+        raise AgentError(artifact.unreadable_reason)
+    params = read_encoding_params(folder, artifact)
+    raw = read_config(folder)
     try:
-        return measure_sentences(folder, artifact, sentences, policy_params_if_needed(folder, artifact))
+        encoder = load_encoder(raw.get("encoder"))
+        cache = build_cache(raw["env"], encoder, progress=False)
+        cached = readout_features(cache, artifact.readout, encoder)
+        train = np.flatnonzero(cache.is_train)
+        understanding = Understanding(
+            artifact, params, cached[train], cache.goal_ids[train], int(cache.num_goals), encoder.embedding_dim
+        )
+        rows = {sentence: row for row, sentence in enumerate(cache.sentences)}
+        fresh = [s for s in dict.fromkeys(sentences.sentences) if s not in rows]
+        computed = cached_sentence_features(encoder, fresh, artifact.readout, description="calibration sentences")
     except (EncodingError, ValueError) as error:
         raise AgentError(str(error)) from None
+    at = {s: i for i, s in enumerate(fresh)}
+    features = np.stack([cached[rows[s]] if s in rows else computed[at[s]] for s in sentences.sentences])
+    measures = Measures.concatenate(
+        [understanding.measure(features[i : i + 512]) for i in range(0, len(features), 512)]
+    )
+    codes = understanding.goal_codes.round().astype(int)  # (K, G, size)
+    description = {
+        "distinct_goal_codes": [float(np.mean([(c == c[g]).all(1).sum() == 1 for g in range(len(c))])) for c in codes],
+        "run": str(folder),
+        "env": raw["env"],
+        "method": raw.get("method", Path(folder).name),
+        "encoding_kind": artifact.kind,
+        "seeds": understanding.num_seeds,
+        "scored_heads": understanding.scored,
+        "encoder": encoder.name,
+    }
+    return measures, description
 
 
 def provenance(args: CalibrateArgs, chosen: Calibration, result: dict, description: dict, counts: dict) -> dict:
@@ -230,38 +271,36 @@ def provenance(args: CalibrateArgs, chosen: Calibration, result: dict, descripti
 
 
 def check_args(args: CalibrateArgs) -> Path:
-    """The method folder; one ``AgentError`` for a bad option."""
+    """The method folder; one ``UsageError`` for a bad option, an ``AgentError`` for a run it cannot read."""
     for name in ("reject_target", "accuracy_target"):
         if not 0.0 < getattr(args, name) <= 1.0:
-            raise AgentError(f"--{name.replace('_', '-')} must lie in (0, 1], got {getattr(args, name)}")
+            raise UsageError(f"--{name.replace('_', '-')} must lie in (0, 1], got {getattr(args, name)}")
     if args.ambiguous_weight < 0:
-        raise AgentError(f"--ambiguous-weight must be >= 0, got {args.ambiguous_weight}")
-    for option, path in (("--out", args.out), ("--report", args.report), ("--json", args.json)):
-        if path is not None and output_path_problem(path, "file"):
-            raise AgentError(f"{option}: {output_path_problem(path, 'file')}")
+        raise UsageError(f"--ambiguous-weight must be >= 0, got {args.ambiguous_weight}")
+    check_outputs((args.out, "--out", "file"), (args.report, "--report", "file"), (args.json, "--json", "file"))
     return method_folder(args.run_dir)
 
 
 def calibrate(args: CalibrateArgs) -> dict:
     folder = check_args(args)
-    env = json.loads((folder / "config.json").read_text())["env"]
+    env = read_config(folder)["env"]
     try:
         sentences = gather_sentences(env, args.data, args.development, get_recipe(env).goal_names())
     except (OSError, ValueError, KeyError) as error:
         raise AgentError(f"cannot read the sentences: {error}") from None
-    measured, description = measure_run(folder, sentences)
+    measures, description = measure_run(folder, sentences)
     counts = {s: int(np.sum(np.array(sentences.sets) == s)) for s in SETS}
     seeds = description["seeds"]
     print(f"run: {folder} ({description['method']}, {env}, {seeds} seeds); sentences: {counts}", flush=True)
     targets = (args.reject_target, args.accuracy_target, args.ambiguous_weight)
     studied = STUDY if args.study else {CHOSEN: STUDY[CHOSEN]}
-    calibrations, results = fit_study(measured, sentences, studied, targets, args.ensemble and seeds > 1)
-    chosen = with_single_seed(calibrations[CHOSEN], measured, sentences, targets)
+    calibrations, results = fit_study(measures, sentences, studied, targets, args.ensemble and seeds > 1)
+    chosen = with_single_seed(calibrations[CHOSEN], measures, sentences, targets)
     chosen = dataclasses.replace(chosen, source=provenance(args, chosen, results[CHOSEN], description, counts))
     out = args.out if args.out is not None else folder / CONFIDENCE_FILE
     out.parent.mkdir(parents=True, exist_ok=True)
-    chosen.write(out)
-    text, record = report_text(measured, sentences, calibrations, results, CHOSEN, chosen, description)
+    write_json_atomic(out, chosen.to_json())
+    text, record = report_text(measures, sentences, calibrations, results, CHOSEN, chosen, description)
     print(text)
     print(f"targets met (held-out): {json.dumps(chosen.source['meets_targets'])}")
     print(f"calibration: {out}")
@@ -270,10 +309,13 @@ def calibrate(args: CalibrateArgs) -> dict:
     return record
 
 
-def main(argv: list[str] | None = None) -> dict:
+def run_command(argv: list[str] | None = None) -> dict:
+    """``python -m experiments.calibrate`` for Python callers: every number of the calibration."""
     runtime.start()
-    return agent_command(CalibrateArgs, calibrate, argv, __doc__)
+    return calibrate(parse(CalibrateArgs, argv, description=__doc__))
 
+
+main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -6,17 +6,16 @@ from __future__ import annotations
 import dataclasses
 import json
 
-from talar_jax.calibration import (
+from talar_jax.confidence import Calibration, Measures
+from talar_jax.confidence.fit import (
     CALIBRATION,
     HELD_OUT,
-    Measured,
     SentenceSet,
     baseline_rates,
     category_rates,
     evaluate,
     familiarity_quantiles,
 )
-from talar_jax.confidence import Calibration
 
 
 def pct(value) -> str:
@@ -81,7 +80,7 @@ def sets_table(result: dict) -> str:
 TRADE_OFF = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)
 
 
-def trade_off_table(measured: Measured, sentences: SentenceSet, calibration: Calibration) -> str:
+def trade_off_table(measures: Measures, sentences: SentenceSet, calibration: Calibration) -> str:
     """Markdown: the held-out shares at other thresholds on the same confidence (what the threshold trades)."""
     lines = [
         "| act from confidence | train acted | test acted | dev acted | dev right among acted | no-goal not acted | "
@@ -89,7 +88,7 @@ def trade_off_table(measured: Measured, sentences: SentenceSet, calibration: Cal
         "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for threshold in sorted({*TRADE_OFF, round(calibration.act_threshold, 3)}):
-        result = evaluate(measured, sentences, dataclasses.replace(calibration, act_threshold=threshold))
+        result = evaluate(measures, sentences, dataclasses.replace(calibration, act_threshold=threshold))
         chosen = " (chosen)" if threshold == round(calibration.act_threshold, 3) else ""
         cells = _acted_cells(result, HELD_OUT)
         lines.append(f"| {threshold:g}{chosen} | " + " | ".join(cells) + " |")
@@ -118,13 +117,13 @@ def seeds_table(result: dict, distinct: list[float]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def report_text(measured, sentences, calibrations, results, chosen_label, chosen, description) -> tuple[str, dict]:
+def report_text(measures, sentences, calibrations, results, chosen_label, chosen, description) -> tuple[str, dict]:
     """What ``experiments.calibrate`` prints (and ``--report`` writes), and the record ``--json`` writes."""
     result = results[chosen_label]
     met = {label: c.source.get("calibration_half_meets_targets") for label, c in calibrations.items()}
-    baseline = baseline_rates(measured, sentences)
-    categories = category_rates(measured, sentences, chosen)
-    quantiles = familiarity_quantiles(measured, sentences)
+    baseline = baseline_rates(measures, sentences)
+    categories = category_rates(measures, sentences, chosen)
+    quantiles = familiarity_quantiles(measures, sentences)
     held = baseline[HELD_OUT]
     acting = "\n".join(f"- {k}: {100 * v:.1f} % not acted on" for k, v in categories.items())
     text = (
@@ -135,7 +134,7 @@ def report_text(measured, sentences, calibrations, results, chosen_label, chosen
         f"{chosen.act_threshold:.3f}, ambiguous from familiarity {chosen.familiar_threshold:.3f}\n\n"
         f"{sets_table(result)}\n"
         f"per acting seed (held-out):\n\n{seeds_table(result, description['distinct_goal_codes'])}\n"
-        f"other thresholds on the same confidence (held-out):\n\n{trade_off_table(measured, sentences, chosen)}\n"
+        f"other thresholds on the same confidence (held-out):\n\n{trade_off_table(measures, sentences, chosen)}\n"
         f"no-goal sentences per category (both halves):\n{acting}\n\n"
         f"familiarity quantiles (0, 5, 50, 95, 100 %): {json.dumps(quantiles)}\n"
     )

@@ -26,22 +26,20 @@ from pathlib import Path
 
 import jax
 import numpy as np
-import tyro
 
-from experiments.cli import output_path_problem, write_output
-from experiments.instruct import agent_command
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, write_output
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
-from talar_jax.agent import Agent, AgentError, find_method_folder
-from talar_jax.confidence import CONFIDENCE_FILE, VERDICTS
+from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError, find_method_folder
+from talar_jax.confidence import VERDICTS
 from talar_jax.language import load_instructions, load_user_instructions
 from talar_jax.report import counted
 
 
 @dataclasses.dataclass(frozen=True)
 class GeneralizeArgs:
-    run_dir: tyro.conf.Positional[Path]
+    run_dir: Path = dataclasses.field(metadata=POSITIONAL)
     """A finished run folder (``runs/clevr`` or a method folder such as ``runs/clevr/talar``)."""
     instructions: Path
     """JSON file of your phrasings (format above)."""
@@ -195,14 +193,12 @@ def seed_line(seed: int, row: dict[str, dict]) -> str:
 
 def generalize(args: GeneralizeArgs) -> dict:
     if args.episodes < 1:
-        raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
-    for option, path in (("--json", args.json), ("--markdown", args.markdown)):
-        if path is not None and output_path_problem(path, "file"):
-            raise AgentError(f"{option}: {output_path_problem(path, 'file')}")
+        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.sentence_episodes < 0:
+        raise UsageError(f"--sentence-episodes must be >= 0, got {args.sentence_episodes}")
+    check_outputs((args.json, "--json", "file"), (args.markdown, "--markdown", "file"))
     folder = find_method_folder(args.run_dir, prefer="talar")
     seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
-    if args.sentence_episodes < 0:
-        raise AgentError(f"--sentence-episodes must be >= 0, got {args.sentence_episodes}")
     per_seed, per_sentence, sizes = [], [], {}
     for seed in range(seeds):
         agent = load_agent(folder, seed=seed)
@@ -250,10 +246,13 @@ def generalize(args: GeneralizeArgs) -> dict:
     return result
 
 
-def main(argv: list[str] | None = None) -> dict:
+def run_command(argv: list[str] | None = None) -> dict:
+    """``python -m experiments.generalize`` for Python callers: the results it printed."""
     runtime.start()
-    return agent_command(GeneralizeArgs, generalize, argv, __doc__)
+    return generalize(parse(GeneralizeArgs, argv, description=__doc__))
 
+
+main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

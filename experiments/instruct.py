@@ -21,28 +21,27 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated
 
 import jax
 import numpy as np
-import tyro
 
-from experiments.cli import output_path_problem, parse_or_exit
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, print_error
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
-from talar_jax.agent import Agent, AgentError
-from talar_jax.confidence import CONFIDENCE_FILE
+from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError
 
 
 @dataclasses.dataclass(frozen=True)
 class InstructArgs:
-    run_dir: Annotated[Path, tyro.conf.Positional]
+    run_dir: Path = dataclasses.field(metadata=POSITIONAL)
     """A finished run folder (``runs/kitchen``, or a method folder such as ``runs/kitchen/talar``)."""
-    sentence: Annotated[str | None, tyro.conf.Positional] = None
+    sentence: str | None = dataclasses.field(default=None, metadata=POSITIONAL)
     """The instruction, in any words (none: read sentences from stdin, one per line)."""
     seed: int = 0
     """Which of the run's seeds acts."""
@@ -91,18 +90,21 @@ def parse_goal(goal: str | None, names: list[str]) -> int | None:
 
 
 def check_args(args: InstructArgs) -> None:
-    """The checks that need no loading (one ``AgentError`` per bad input)."""
+    """The checks that need no loading (one ``UsageError`` per bad input), so nothing is loaded or run for a
+    command line that cannot succeed."""
     if args.sentence is not None and not args.sentence.strip():
-        raise AgentError("the sentence is empty")
+        raise UsageError("the sentence is empty")
     if args.sentence is None and args.video is not None:
-        raise AgentError("--video needs a sentence on the command line (not sentences read from stdin)")
+        raise UsageError("--video needs a sentence on the command line (not sentences read from stdin)")
     if args.episodes < 1:
-        raise AgentError(f"--episodes must be >= 1, got {args.episodes}")
+        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
     if args.video is not None and args.video.suffix not in (".gif", ".mp4"):
-        raise AgentError(f"--video must end in .gif or .mp4, got {args.video}")
-    for option, path in (("--video", args.video), ("--json", args.json)):
-        if path is not None and output_path_problem(path, "file"):
-            raise AgentError(f"{option}: {output_path_problem(path, 'file')}")
+        raise UsageError(f"--video must end in .gif or .mp4, got {args.video}")
+    check_outputs((args.video, "--video", "file"), (args.json, "--json", "file"))
+    if args.video is not None and args.video.suffix == ".mp4" and shutil.which("ffmpeg") is None:
+        raise UsageError(
+            f"--video {args.video}: an .mp4 needs the ffmpeg program, not found on PATH; install it or write a .gif"
+        )
 
 
 def instruct(args: InstructArgs) -> dict | list[dict]:
@@ -124,20 +126,34 @@ def instruct(args: InstructArgs) -> dict | list[dict]:
         write_json(args.json, result)
         return result
     results = []
-    for line in sys.stdin:
-        sentence = line.strip()
+    for sentence in read_sentences():
         if not sentence:
-            print("error: the sentence is empty", file=sys.stderr, flush=True)
+            print_error("the sentence is empty")
             continue
         try:
             results.append(answer(agent, args, sentence, names, goal, None))
         except AgentError as error:  # a sentence the encoder cannot read: one line, and the next sentence
-            print(f"error: {error}", file=sys.stderr, flush=True)
+            print_error(str(error))
             continue
         write_json(args.json, results)
         sys.stdout.flush()
     write_json(args.json, results)
     return results
+
+
+def read_sentences() -> Iterator[str]:
+    """The sentences of standard input, one per line (stripped) until its end; at a terminal each is asked for
+    with a ``> `` prompt, and the end (Ctrl-D) ends the line the prompt began."""
+    interactive = sys.stdin.isatty()
+    while True:
+        if interactive:
+            print("> ", end="", flush=True)
+        line = sys.stdin.readline()
+        if not line:
+            if interactive:
+                print()
+            return
+        yield line.strip()
 
 
 def write_json(path: Path | None, payload) -> None:
@@ -213,20 +229,14 @@ def write_episode_video(agent: Agent, args: InstructArgs, sentence: str, goal: i
     return {"video": str(args.video)}
 
 
-def agent_command(cls, function, argv: list[str] | None, description: str | None):
-    """Parses ``cls`` and calls ``function``; an ``AgentError`` prints one ``error:`` line and exits with status 2."""
-    args = parse_or_exit(cls, argv, description=description)
-    try:
-        return function(args)
-    except AgentError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
-
-
-def main(argv: list[str] | None = None) -> dict:
+def run_command(argv: list[str] | None = None) -> dict | list[dict]:
+    """``python -m experiments.instruct`` for Python callers: the record of the sentence (a list of them for the
+    sentences of stdin). Bad input raises ``experiments.cli.UsageError``, a run that cannot answer ``AgentError``."""
     runtime.start()
-    return agent_command(InstructArgs, instruct, argv, __doc__)
+    return instruct(parse(InstructArgs, argv, description=__doc__))
 
+
+main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -18,14 +18,19 @@ from pathlib import Path
 
 import jax
 import numpy as np
-import tyro
 
-from experiments.cli import CLI_CONFIG, valid_or_exit
+from experiments.cli import POSITIONAL, checked, command, parse
 from experiments.reports import load_agent
 from talar_jax import runtime
-from talar_jax.agent import POLICY_FILE, SHIPPED_AGENTS_DIR, SHIPPED_RECORD, AgentError, _latest_policy_params
+from talar_jax.agent import (
+    CONFIDENCE_FILE,
+    POLICY_FILE,
+    SHIPPED_AGENTS_DIR,
+    SHIPPED_RECORD,
+    AgentError,
+    read_policy_params,
+)
 from talar_jax.checkpoint import load_tree, save_tree, write_json_atomic
-from talar_jax.confidence import CONFIDENCE_FILE
 from talar_jax.encodings import ENCODING_FILE, FILE_SOURCE, EncodingArtifact
 
 
@@ -33,7 +38,7 @@ from talar_jax.encodings import ENCODING_FILE, FILE_SOURCE, EncodingArtifact
 class ShipArgs:
     """Which run and seed to ship, under which name."""
 
-    run_dir: tyro.conf.Positional[Path]
+    run_dir: Path = dataclasses.field(metadata=POSITIONAL)
     """A finished run folder (its root or method folder)."""
     name: str
     """The agent's name (``talar_jax.agent.load(name)``, ``python -m experiments.instruct NAME``): usually the env."""
@@ -72,7 +77,7 @@ def ship(args: ShipArgs) -> Path:
     for name in (ENCODING_FILE, "language.json"):
         shutil.copy(folder / name, method / name)
     shutil.copy(folder / "ifp" / "stage.json", method / "ifp" / "stage.json")
-    save_tree(method / "ifp" / "ppo" / POLICY_FILE, _one_seed(_latest_policy_params(folder / "ifp" / "ppo"), seed))
+    save_tree(method / "ifp" / "ppo" / POLICY_FILE, _one_seed(read_policy_params(folder), seed))
     encoding = EncodingArtifact.read(folder)
     if encoding.params is not None and encoding.params.source == FILE_SOURCE:
         # Every seed's encoding, the shipped seed's first: the agent acts on seed 0's, and its confidence weighs how
@@ -110,13 +115,16 @@ def check(args: ShipArgs) -> ShipArgs:
     return args
 
 
-def main(argv: list[str] | None = None) -> Path:
+def run_command(argv: list[str] | None = None) -> Path:
+    """``python -m experiments.ship`` for Python callers: the shipped agent's folder."""
     runtime.start()
-    args = valid_or_exit(check, tyro.cli(ShipArgs, args=argv, description=__doc__, config=CLI_CONFIG))
+    args = checked(check, parse(ShipArgs, argv, description=__doc__))
     target = ship(args)
     print(f"shipped {args.run_dir} as {target}")
     return target
 
 
+main = command(run_command)
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

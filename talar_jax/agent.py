@@ -19,8 +19,12 @@ training instructions share that code, ``agent.act(obs, code, rng)`` an action a
 a whole episode. ``agent.understand(sentence)`` says whether the agent should act on it at all: a
 ``talar_jax.confidence.Verdict`` (``"understood"`` and the goal, ``"ambiguous"`` and the likeliest goals, or ``"not
 understood"``) with a confidence calibrated by the run's ``confidence.json`` (``python -m experiments.calibrate``; a
-run without one uses ``Calibration.default()``). Runs whose record says they cannot read a new sentence (kind
+run without one uses ``default_calibration()``). Runs whose record says they cannot read a new sentence (kind
 ``"none"``, e.g. One-hot) raise ``AgentError`` with the record's reason.
+
+This module is the loader: it alone reads a run folder's files (``read_config``, ``read_policy_params``,
+``read_encoding_params``, ``read_calibration``). A file that is missing or damaged (truncated, not JSON, a checkpoint
+that does not restore) raises one ``AgentError`` naming the file and the command that rebuilds it; nothing is written.
 """
 
 from __future__ import annotations
@@ -37,14 +41,16 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from talar_jax.checkpoint import load_tree
-from talar_jax.confidence import CONFIDENCE_FILE, Calibration, ConfidenceError, Understanding, Verdict
+from talar_jax.checkpoint import load_tree, read_json_record
+from talar_jax.confidence import Calibration, ConfidenceError, Understanding, Verdict
 from talar_jax.encodings import (
     ENCODING_FILE,
     POLICY_SOURCE,
     EncodingArtifact,
     EncodingError,
-    make_encoding,
+    build_encoding,
+    one_seed_params,
+    stored_encoding_params,
 )
 from talar_jax.language import build_cache, load_encoder, readout_features, sentence_features, stack_features
 from talar_jax.networks import make_inference_fn, make_ppo_networks
@@ -83,6 +89,13 @@ SHIPPED_AGENTS_DIR = Path(__file__).parent / "agents"
 seed, its policy in ``POLICY_FILE`` instead of orbax checkpoints, and ``SHIPPED_RECORD`` saying where it came from."""
 POLICY_FILE = "policy.msgpack"
 SHIPPED_RECORD = "shipped.json"
+CONFIG_FILE = "config.json"
+CONFIDENCE_FILE = "confidence.json"
+"""A run's confidence calibration, in its method folder (``python -m experiments.calibrate`` writes it)."""
+DEFAULT_CALIBRATION_FILE = SHIPPED_AGENTS_DIR / "default_confidence.json"
+"""The calibration of runs that have none of their own: the one fit on the kitchen TALAR run at the paper's budget
+(``python -m experiments.calibrate runs/kitchen``, ``results/abstention.md``). Its familiarity is that of
+all-MiniLM-L6-v2, so it means little for another encoder: calibrate such a run."""
 
 
 def shipped_agents() -> tuple[str, ...]:
@@ -102,8 +115,10 @@ def find_method_folder(run_dir: str | Path, prefer: str | None = None) -> Path:
     if not run_dir.is_dir():
         shipped = ", ".join(shipped_agents()) or "none"
         raise AgentError(f"run folder {run_dir} does not exist and no shipped agent has its name (shipped: {shipped})")
-    if (run_dir / "config.json").is_file() and (run_dir / "ifp").exists():
+    if (run_dir / CONFIG_FILE).is_file() and (run_dir / "ifp").exists():
         return run_dir
+    if (run_dir / "ifp").exists():
+        raise AgentError(f"{run_dir / CONFIG_FILE} is missing: {_rebuild_hint(run_dir)}")
     candidates = sorted(p.parent for p in run_dir.glob("*/config.json") if (p.parent / "ifp").exists())
     if not candidates:
         raise AgentError(f"{run_dir} holds no experiment run (no <method>/config.json with an ifp stage)")
@@ -125,22 +140,133 @@ def read_encoding(folder: Path) -> EncodingArtifact:
         )
     try:
         return EncodingArtifact.read(folder)
-    except EncodingError as error:
-        raise AgentError(str(error)) from None
+    except (EncodingError, UnicodeDecodeError) as error:
+        raise AgentError(f"{error}: {_rebuild_hint(folder)}") from None
 
 
-def _latest_policy_params(ppo_dir: Path) -> dict[str, Any]:
+# --- reading a run folder ---------------------------------------------------------------------------------------
+def _rebuild_hint(folder: Path, stage: Path | None = None) -> str:
+    """What rebuilds a method folder's damaged or missing file: a shipped agent is restored from the package; a run's
+    file is written again by the run's command (after removing the finished ``stage`` that holds it, since a
+    finished stage is reused as it is)."""
+    if (folder / SHIPPED_RECORD).is_file():
+        name = folder.parent.name
+        return (
+            f"restore the shipped agent {name!r} (reinstall talar-jax, or in a clone git checkout -- "
+            f"talar_jax/agents/{name}), or ship it again (python -m experiments.ship RUN --name {name})"
+        )
+    try:
+        env = json.loads((folder / CONFIG_FILE).read_text())["env"]
+    except (OSError, ValueError, KeyError, TypeError):
+        env = "<env>"
+    remove = f"remove {stage} and " if stage is not None else ""
+    return (
+        f"{remove}rerun the command that made the run (python -m experiments.{env} --out {folder.parent} with its "
+        "options; its finished stages are reused)"
+    )
+
+
+def _damaged(path: Path, problem: str, folder: Path, stage: Path | None = None) -> AgentError:
+    return AgentError(f"{path} is damaged ({problem}): {_rebuild_hint(folder, stage)}")
+
+
+def read_config(folder: Path) -> dict[str, Any]:
+    """The run's resolved config (``config.json`` of its method folder)."""
+    path = folder / CONFIG_FILE
+    try:
+        config = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise AgentError(f"{path} is missing: {_rebuild_hint(folder)}") from None
+    except ValueError as error:  # truncated or not JSON (undecodable bytes included)
+        raise _damaged(path, f"not valid JSON: {error}", folder) from None
+    if not isinstance(config, dict) or not all(key in config for key in ("env", "seeds")):
+        raise _damaged(path, "not a run config: no env or seeds", folder)
+    return config
+
+
+def _read_tree(path: Path, folder: Path, stage: Path) -> Any:
+    """A msgpack tree of the run (``save_tree``'s files), or the ``AgentError`` naming it."""
+    if not path.is_file():
+        raise AgentError(f"{path} is missing: {_rebuild_hint(folder, stage)}")
+    try:
+        tree = load_tree(path)
+    except ValueError as error:  # msgpack's errors for truncated or foreign bytes are all ValueErrors
+        raise _damaged(path, f"msgpack: {error}", folder, stage) from None
+    if not isinstance(tree, dict):
+        raise _damaged(path, "not a tree of parameters", folder, stage)
+    return tree
+
+
+def read_policy_params(folder: str | Path) -> dict[str, Any]:
+    """The policy's seed-stacked parameters of a method folder: its last checkpoint (a shipped agent's
+    ``POLICY_FILE``: the last checkpoint's parameters of one seed)."""
     import orbax.checkpoint as ocp
 
-    if (ppo_dir / POLICY_FILE).is_file():  # a shipped agent: the last checkpoint's parameters, one seed
-        return load_tree(ppo_dir / POLICY_FILE)
-    if not (ppo_dir / "checkpoints").is_dir():
-        raise AgentError(f"{ppo_dir} has no policy checkpoints")
-    manager = ocp.CheckpointManager((ppo_dir / "checkpoints").absolute())
-    step = manager.latest_step()
-    if step is None:
-        raise AgentError(f"{ppo_dir} has no policy checkpoint")
-    return manager.restore(step, args=ocp.args.StandardRestore())["params"]
+    folder = Path(folder)
+    stage = folder / "ifp"
+    ppo_dir = stage / "ppo"
+    if (ppo_dir / POLICY_FILE).is_file():
+        return _read_tree(ppo_dir / POLICY_FILE, folder, stage)
+    checkpoints = ppo_dir / "checkpoints"
+    if not checkpoints.is_dir():
+        raise AgentError(f"{ppo_dir} has no policy checkpoints: {_rebuild_hint(folder, stage)}")
+    try:
+        manager = ocp.CheckpointManager(checkpoints.absolute(), options=ocp.CheckpointManagerOptions(read_only=True))
+        step = manager.latest_step()
+        if step is None:
+            raise AgentError(f"{checkpoints} holds no policy checkpoint: {_rebuild_hint(folder, stage)}")
+        # The arrays are read here, not on first use, so that a damaged file is told now and in one line.
+        return jax.device_get(manager.restore(step, args=ocp.args.StandardRestore())["params"])
+    except AgentError:
+        raise
+    except Exception as error:  # orbax and tensorstore raise many types for a damaged checkpoint
+        message = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
+        raise _damaged(checkpoints, f"the policy checkpoint does not restore: {message}", folder, stage) from None
+
+
+def read_encoding_params(folder: Path, artifact: EncodingArtifact, policy_params: dict[str, Any] | None = None) -> Any:
+    """The encoding's parameters of every seed (leading axis), from the file or policy entry its record names
+    (``policy_params``: the policy's, read from the run when needed and not given)."""
+    source = artifact.params
+    if source is not None and source.source == POLICY_SOURCE and policy_params is None:
+        policy_params = read_policy_params(folder)
+    path = folder.parent / source.path if source is not None and source.source != POLICY_SOURCE else None
+    stage = path.parent if path is not None and path.parent != folder.parent else None
+    try:
+        tree, _ = stored_encoding_params(artifact, folder, policy_params)
+    except EncodingError as error:
+        hint = f": {_rebuild_hint(folder, stage)}" if path is not None and not path.is_file() else ""
+        raise AgentError(f"{error}{hint}") from None
+    except ValueError as error:  # msgpack's errors for a truncated or foreign parameters file are ValueErrors
+        raise _damaged(path, f"msgpack: {error}", folder, stage) from None
+    if not isinstance(tree, dict):
+        raise _damaged(path or folder / "ifp", "not a tree of parameters", folder, stage)
+    return jax.tree.map(np.asarray, tree)
+
+
+def read_calibration(path: str | Path) -> Calibration:
+    """The calibration in ``path`` (a ``confidence.json``, or a method folder holding one)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / CONFIDENCE_FILE
+    if not path.is_file():
+        raise AgentError(f"no calibration at {path}")
+    try:
+        return read_json_record(path, Calibration.from_json, ConfidenceError)
+    except (ConfidenceError, UnicodeDecodeError) as error:
+        raise AgentError(f"{error}: calibrate the run again (python -m experiments.calibrate {path.parent})") from None
+
+
+def default_calibration() -> Calibration:
+    """The calibration of a run that has none (``DEFAULT_CALIBRATION_FILE``); its ``source["default"]`` is True so
+    that callers can say so."""
+    return Calibration.from_json(json.loads(DEFAULT_CALIBRATION_FILE.read_text()))
+
+
+def _sentence_list(sentences: Any) -> Sequence[Any]:
+    if not isinstance(sentences, Sequence):
+        raise TypeError(f"sentences are a str or a sequence of them, got {type(sentences).__name__}: {sentences!r}")
+    return sentences
 
 
 class Agent:
@@ -161,7 +287,7 @@ class Agent:
                 f"the run in {folder} is not finished (its ifp stage has no stage.json): rerun its command to finish it"
             )
         self.folder = folder
-        self.config = json.loads((folder / "config.json").read_text())
+        self.config = read_config(folder)
         self.method = str(self.config.get("method", folder.name))
         self.encoding = read_encoding(folder)
         if not self.encoding.readable:
@@ -173,16 +299,17 @@ class Agent:
         self.env_name = self.config["env"]
         self.readout = self.encoding.readout
         self.env = envs.make(
-            self.env_name, physics=physics or envs.default_backend(), **(self.config.get("env_options") or {})
+            self.env_name, physics=physics or envs.default_physics(), **(self.config.get("env_options") or {})
         )
         self.encoder = load_encoder(self.config.get("encoder"))
         self.cache = build_cache(self.env_name, self.encoder, progress=False)
         self._cache_features: np.ndarray | None = None
         if check_encoder:
             self._check_encoder()
-        stacked = _latest_policy_params(folder / "ifp" / "ppo")
+        stacked = read_policy_params(folder)
+        self._encoding_params = read_encoding_params(folder, self.encoding, stacked)
         try:
-            self._encoding = make_encoding(self.encoding, folder, seed, stacked)
+            self._encoding = build_encoding(self.encoding, one_seed_params(self._encoding_params, seed))
         except EncodingError as error:
             raise AgentError(str(error)) from None
         train_rows = np.flatnonzero(self.cache.is_train)
@@ -203,7 +330,6 @@ class Agent:
         self._policy_params = jax.tree.map(
             lambda x: np.asarray(x)[seed], {k: v for k, v in stacked.items() if k != own}
         )
-        self._encoding_policy_params = {own: stacked[own]} if own is not None else None
         self._make_policy = make_inference_fn(networks)
         self._episode = jax.jit(self._episode_fn, static_argnames=("deterministic",))
         self._batched_episodes: dict[bool, Any] = {}
@@ -215,7 +341,12 @@ class Agent:
         record_path = self.folder / LANGUAGE_RECORD
         if not record_path.is_file():
             return  # runs made before the record existed: the encoder option in config.json is all there is
-        record = json.loads(record_path.read_text())
+        try:
+            record = json.loads(record_path.read_bytes())
+        except ValueError as error:
+            raise _damaged(record_path, f"not valid JSON: {error}", self.folder) from None
+        if not isinstance(record, dict):
+            raise _damaged(record_path, "not a language record", self.folder)
         if record.get("weights_sha256") != self.encoder.weights_sha256 or record.get("cache_key") != self.cache.key:
             raise AgentError(
                 f"the encoder found ({self.encoder.name}, weights sha256 {self.encoder.weights_sha256[:12]}) is not "
@@ -229,8 +360,10 @@ class Agent:
 
     def encode(self, sentences: str | Sequence[str]) -> np.ndarray:
         """(S, F) (or (S, T, D) token states) the features the run's encoding reads of each sentence."""
-        sentences = [sentences] if isinstance(sentences, str) else list(sentences)
+        sentences = [sentences] if isinstance(sentences, str) else list(_sentence_list(sentences))
         for sentence in sentences:
+            if not isinstance(sentence, str):
+                raise TypeError(f"a sentence is a str, got {type(sentence).__name__}: {sentence!r}")
             if not sentence.strip():
                 raise AgentError("a sentence is empty")
         rows = {sentence: row for row, sentence in enumerate(self.cache.sentences)}
@@ -289,12 +422,9 @@ class Agent:
 
     @property
     def calibration(self) -> Calibration:
-        """The run's confidence calibration, or ``Calibration.default()`` when it has none."""
+        """The run's confidence calibration, or ``default_calibration()`` when it has none."""
         if self._calibration is None:
-            try:
-                self._calibration = Calibration.read(self.folder) if self.calibrated else Calibration.default()
-            except ConfidenceError as error:
-                raise AgentError(str(error)) from None
+            self._calibration = read_calibration(self.folder) if self.calibrated else default_calibration()
         return self._calibration
 
     @calibration.setter
@@ -309,11 +439,10 @@ class Agent:
             try:
                 self._understanding = Understanding(
                     self.encoding,
-                    self.folder,
+                    self._encoding_params,
                     self.cache_features()[rows],
                     self.cache.goal_ids[rows],
                     int(self.cache.num_goals),
-                    policy_params=self._encoding_policy_params,
                     embedding_dim=self.encoder.embedding_dim,
                 )
             except (EncodingError, ConfidenceError) as error:
@@ -323,6 +452,8 @@ class Agent:
     def understand(self, sentence: str) -> Verdict:
         """The verdict on one sentence: act on it (``"understood"``, its goal), ask (``"ambiguous"``, the likeliest
         goals) or refuse (``"not understood"``), with its calibrated confidence."""
+        if not isinstance(sentence, str):
+            raise TypeError(f"understand takes one sentence, a str; got {type(sentence).__name__}: {sentence!r}")
         return self.judge([sentence])[0]
 
     def judge(self, sentences: Sequence[str], features: np.ndarray | None = None) -> list[Verdict]:

@@ -378,6 +378,11 @@ def encoding_params(
             come from the policy.
     """
     tree, where = stored_encoding_params(artifact, method_folder, policy_params)
+    return one_seed_params(tree, seed, where)
+
+
+def one_seed_params(tree: Any, seed: int, where: str = "the run") -> Any:
+    """Seed ``seed``'s parameters of the encoding's seed-stacked ``tree`` (stored at ``where``)."""
     leaves = jax.tree.leaves(tree)
     seeds = min((np.shape(leaf)[0] if np.ndim(leaf) else 0) for leaf in leaves) if leaves else 0
     if not 0 <= seed < seeds:
@@ -395,11 +400,21 @@ def make_encoding(
     reason), an unregistered kind or missing parameters."""
     if not artifact.readable:
         raise EncodingError(artifact.unreadable_reason)
+    _registered_build(artifact)  # an unregistered kind is told before its parameters are read
+    return build_encoding(artifact, encoding_params(artifact, method_folder, seed, policy_params))
+
+
+def build_encoding(artifact: EncodingArtifact, params: Any) -> Encoding:
+    """The jitted ``features -> codes`` function of one seed's ``params`` (already loaded), by the builder
+    registered for the artifact's kind."""
+    return jax.jit(_registered_build(artifact)(artifact, params))
+
+
+def _registered_build(artifact: EncodingArtifact) -> EncodingBuild:
     build = _KINDS.get(artifact.kind)
     if build is None:
         raise EncodingError(
             f"encoding kind {artifact.kind!r} is not registered (known: {', '.join(_KINDS)}); register it with "
             "talar_jax.encodings.register_encoding_kind before loading"
         )
-    params = encoding_params(artifact, method_folder, seed, policy_params)
-    return jax.jit(build(artifact, params))
+    return build

@@ -11,7 +11,7 @@ import pytest
 from experiments import generalize, instruct
 from experiments.reports import trained_codes
 from talar_jax import encodings
-from talar_jax.agent import Agent, AgentError, _latest_policy_params, load
+from talar_jax.agent import Agent, AgentError, load, read_policy_params
 from talar_jax.baselines import AlignedEncodingLayer
 from talar_jax.checkpoint import save_tree
 from talar_jax.encodings import ENCODING_FILE, EncodingArtifact, EncodingError, ParamsSource, register_encoding_kind
@@ -48,7 +48,7 @@ def _finished_run(folder, config, method):
 
 def _save_policy(out, folder, conditioner=None):
     """The TALAR fixture's seed-stacked policy in ``folder``'s checkpoint (with a ``conditioner`` entry if given)."""
-    policy = {k: v for k, v in _latest_policy_params(out / "talar" / "ifp" / "ppo").items() if k != "conditioner"}
+    policy = {k: v for k, v in read_policy_params(out / "talar").items() if k != "conditioner"}
     extra = {} if conditioner is None else {"conditioner": conditioner}
     with ocp.CheckpointManager((folder / "ifp" / "ppo" / "checkpoints").absolute()) as manager:
         manager.save(7, args=ocp.args.StandardSave({"params": {**policy, **extra}}))
@@ -172,7 +172,7 @@ def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent
 def test_instruct_prints_the_code_and_success_and_writes_a_video(talar_run, tmp_path, capsys):
     out, _ = talar_run
     video = tmp_path / "episode.gif"
-    result = instruct.main(
+    result = instruct.run_command(
         [
             *[str(out), "move the red ball left of the blue ball", "--episodes", "4", "--goal", "3"],
             *["--video", str(video), "--act-anyway"],  # the tiny BERT's run has no calibration: act whatever it says
@@ -197,7 +197,7 @@ def test_generalize_on_the_test_patterns_reproduces_the_tables_agreement(talar_r
             }
         )
     )
-    result = generalize.main(
+    result = generalize.run_command(
         [str(out), "--instructions", str(mine), "--episodes", "8", "--json", str(tmp_path / "r.json")]
     )
     assert json.loads((tmp_path / "r.json").read_text())["sentences"] == {"train": 720, "test": 720, "yours": 80}

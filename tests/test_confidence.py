@@ -12,10 +12,10 @@ import pytest
 
 from experiments import calibrate, generalize, instruct
 from talar_jax import agent as agent_module
-from talar_jax.checkpoint import save_tree
+from talar_jax.agent import CONFIDENCE_FILE, AgentError, default_calibration, read_calibration, read_encoding_params
+from talar_jax.checkpoint import save_tree, write_json_atomic
 from talar_jax.confidence import (
     AMBIGUOUS,
-    CONFIDENCE_FILE,
     NOT_UNDERSTOOD,
     UNDERSTOOD,
     Calibration,
@@ -56,9 +56,10 @@ def hand_made(**changes) -> Calibration:
 
 
 def measures(familiarity, posterior, decoded) -> Measures:
-    posterior = np.asarray(posterior, np.float64)
-    decoded = np.asarray(decoded)
-    return Measures(np.asarray(familiarity, np.float64), posterior, posterior, decoded, decoded[None])
+    """One seed's measures whose goal posterior at temperature 1 is ``posterior``."""
+    with np.errstate(divide="ignore"):
+        log_likelihood = np.log(np.asarray(posterior, np.float64))[None]
+    return Measures(np.asarray(familiarity, np.float64), log_likelihood, np.asarray(decoded)[None])
 
 
 # --- verdicts of a hand-made calibration ---------------------------------------------------------------------------
@@ -75,7 +76,7 @@ def test_clear_ambiguous_and_nonsense_sentences_get_their_verdicts():
         ],
         decoded=[0, 3, 0, -1],  # the last sentence's code decodes to no goal: never acted on
     )
-    clear, burner, sandwich, door = calibration.verdicts(found, sentences)
+    clear, burner, sandwich, door = calibration.verdicts(found, 0, sentences)
     assert (clear.verdict, clear.goal, clear.decoded) == (UNDERSTOOD, 0, 0) and clear.acts
     assert clear.confidence > 0.99 and clear.candidates[0] == (0, pytest.approx(0.97))
     assert (burner.verdict, burner.goal) == (AMBIGUOUS, None) and not burner.acts
@@ -94,29 +95,32 @@ def test_clear_ambiguous_and_nonsense_sentences_get_their_verdicts():
 
 def test_thresholds_decide_and_candidates_are_capped():
     found = measures([0.9], [[0.4, 0.3, 0.2, 0.06, 0.04]], [0])
-    assert hand_made().verdicts(found, ["x"])[0].verdict == AMBIGUOUS
-    assert hand_made(act_threshold=0.0).verdicts(found, ["x"])[0].verdict == UNDERSTOOD
-    assert hand_made(familiar_threshold=0.95).verdicts(found, ["x"])[0].verdict == NOT_UNDERSTOOD
-    assert len(hand_made().verdicts(found, ["x"])[0].candidates) == 3
-    assert len(hand_made(max_candidates=2).verdicts(found, ["x"])[0].candidates) == 2
+    assert hand_made().verdicts(found, 0, ["x"])[0].verdict == AMBIGUOUS
+    assert hand_made(act_threshold=0.0).verdicts(found, 0, ["x"])[0].verdict == UNDERSTOOD
+    assert hand_made(familiar_threshold=0.95).verdicts(found, 0, ["x"])[0].verdict == NOT_UNDERSTOOD
+    assert len(hand_made().verdicts(found, 0, ["x"])[0].candidates) == 3
+    assert len(hand_made(max_candidates=2).verdicts(found, 0, ["x"])[0].candidates) == 2
+    with pytest.raises(ConfidenceError, match="seed 1 is not among the 1 seeds"):
+        hand_made().verdicts(found, 1, ["x"])
 
 
 def test_calibrations_round_trip_and_bad_ones_give_one_line(tmp_path):
     calibration = hand_made(source={"run": "runs/kitchen/talar"})
-    path = calibration.write(tmp_path / CONFIDENCE_FILE)
-    again = Calibration.read(tmp_path)
+    path = tmp_path / CONFIDENCE_FILE
+    write_json_atomic(path, calibration.to_json())
+    again = read_calibration(tmp_path)
     assert again == calibration and again.source == {"run": "runs/kitchen/talar"}
-    assert Calibration.default().source.get("default") is True
+    assert default_calibration().source.get("default") is True
     with pytest.raises(ConfidenceError, match="unknown confidence features"):
         hand_made(features=("familiarity", "vibes"))
     data = json.loads(path.read_text())
     del data["act_threshold"]
     path.write_text(json.dumps(data))
-    with pytest.raises(ConfidenceError, match="missing keys act_threshold"):
-        Calibration.read(path)
+    with pytest.raises(AgentError, match="missing keys act_threshold.*python -m experiments.calibrate"):
+        read_calibration(path)
     path.write_text("{not json")
-    with pytest.raises(ConfidenceError, match="not valid JSON"):
-        Calibration.read(path)
+    with pytest.raises(AgentError, match="not valid JSON"):
+        read_calibration(path)
 
 
 def test_an_agent_holding_one_seed_uses_the_single_seed_calibration():
@@ -128,18 +132,17 @@ def test_an_agent_holding_one_seed_uses_the_single_seed_calibration():
         hand_made().for_seeds(1)
     with pytest.raises(ConfidenceError, match="only an ensemble calibration holds a single-seed one"):
         hand_made(ensemble=False, single_seed=single)
-    assert Calibration.default().for_seeds(1).ensemble is False
+    assert default_calibration().for_seeds(1).ensemble is False
 
 
 def test_the_ensemble_spreads_the_posterior_when_seeds_disagree():
     log_likelihood = np.array([[[0.0, -20.0, -20.0]], [[-20.0, 0.0, -20.0]]])  # (K=2, S=1, G=3)
-    from talar_jax.confidence import measures_from
-
-    alone = measures_from(np.ones(1), log_likelihood, np.array([[0], [1]]), 0, hand_made(ensemble=False))
-    together = measures_from(np.ones(1), log_likelihood, np.array([[0], [1]]), 0, hand_made(ensemble=True))
-    assert alone.posterior[0, 0] == pytest.approx(1.0)
-    np.testing.assert_allclose(together.posterior[0], [0.5, 0.5, 0.0], atol=1e-6)
-    assert hand_made().confidence(together)[0] < 0.5 < hand_made().confidence(alone)[0]
+    found = Measures(np.ones(1), log_likelihood, np.array([[0], [1]]))
+    alone, own = found.goal_posteriors(0, 1.0, ensemble=False)
+    together, _ = found.goal_posteriors(0, 1.0, ensemble=True)
+    assert alone[0, 0] == pytest.approx(1.0) and own is alone
+    np.testing.assert_allclose(together[0], [0.5, 0.5, 0.0], atol=1e-6)
+    assert hand_made(ensemble=True).confidence(found, 0)[0] < 0.5 < hand_made(ensemble=False).confidence(found, 0)[0]
     np.testing.assert_allclose(goal_posterior(np.array([0.0, -np.log(3.0)]), 1.0), [0.75, 0.25])
 
 
@@ -162,7 +165,7 @@ def test_goal_log_likelihoods_are_the_translators_eq3_likelihoods_and_codes_its_
     rng = np.random.default_rng(0)
     train = rng.normal(size=(30, 8)).astype(np.float32)
     goals = np.arange(30) % 3
-    understanding = Understanding(artifact, folder, train, goals, 3)
+    understanding = Understanding(artifact, read_encoding_params(folder, artifact), train, goals, 3)
     assert understanding.scored and understanding.num_seeds == 2
     queries = rng.normal(size=(5, 8)).astype(np.float32)
     log_likelihood = understanding.log_likelihoods(queries)  # (K, S, G)
@@ -203,12 +206,12 @@ def test_a_kind_without_a_scorer_is_judged_on_its_hard_codes(tmp_path):
     save_tree(folder / "p.msgpack", {"prototypes": prototypes})
     artifact = EncodingArtifact(kind, "sentence", 3, binary=True, params=ParamsSource.file("proto/p.msgpack"))
     train = np.eye(3, 4, dtype=np.float32)
-    understanding = Understanding(artifact, folder, train, np.arange(3), 3)
+    understanding = Understanding(artifact, read_encoding_params(folder, artifact), train, np.arange(3), 3)
     assert not understanding.scored
-    familiarity, log_likelihood, decoded = understanding.seed_measures(np.eye(3, 4, dtype=np.float32)[:1])
-    np.testing.assert_array_equal(decoded[:, 0], [0, 0])  # each seed decodes by its own training codes
-    found = understanding.measures(train[:1], 0, hand_made())
-    assert found.posterior[0].argmax() == 0 and found.posterior[0, 0] > 0.99
+    found = understanding.measure(np.eye(3, 4, dtype=np.float32)[:1])
+    np.testing.assert_array_equal(found.decoded[:, 0], [0, 0])  # each seed decodes by its own training codes
+    posterior, _ = found.goal_posteriors(0, 1.0, ensemble=True)
+    assert posterior[0].argmax() == 0 and posterior[0, 0] > 0.99
 
 
 # --- the agent and the commands on the quick CLEVR run --------------------------------------------------------------
@@ -233,7 +236,9 @@ def run_copy(clevr_run, tmp_path_factory):
 
 
 def _calibrate_copy(run_copy, **changes):
-    hand_made(**{**ACT_ON_TRAINING_SENTENCES, **changes}).write(run_copy / "talar" / CONFIDENCE_FILE)
+    write_json_atomic(
+        run_copy / "talar" / CONFIDENCE_FILE, hand_made(**{**ACT_ON_TRAINING_SENTENCES, **changes}).to_json()
+    )
 
 
 def test_the_agent_understands_its_training_sentences_and_not_others(run_copy):
@@ -271,7 +276,7 @@ def test_instruct_acts_on_what_it_understood_and_writes_the_json(run_copy, tmp_p
     calls = _count_episodes(monkeypatch)
     sentence = "Push the red ball in front of the blue ball."  # a training sentence of the CLEVR set
     out = tmp_path / "acted.json"
-    result = instruct.main([str(run_copy), sentence, "--episodes", "3", "--json", str(out)])
+    result = instruct.run_command([str(run_copy), sentence, "--episodes", "3", "--json", str(out)])
     printed = capsys.readouterr().out
     assert "confidence: 1.00 (understood" in printed and "success: " in printed and calls == [3]
     written = json.loads(out.read_text())
@@ -285,14 +290,14 @@ def test_instruct_abstains_in_one_line_and_runs_no_episode(run_copy, tmp_path, c
     _calibrate_copy(run_copy, familiar_threshold=0.0)
     calls = _count_episodes(monkeypatch)
     out = tmp_path / "abstained.json"
-    result = instruct.main([str(run_copy), "zzz qqq the the", "--json", str(out)])
+    result = instruct.run_command([str(run_copy), "zzz qqq the the", "--json", str(out)])
     lines = capsys.readouterr().out.strip().splitlines()
     assert calls == [] and not any(line.startswith("success") for line in lines)
     assert lines[-1].startswith('not sure: "zzz qqq the the" ') and lines[-1].endswith("rephrase, or --act-anyway")
     written = json.loads(out.read_text())
     assert written["verdict"] == "ambiguous" and written["acted"] is False and "success" not in written
     assert written == json.loads(json.dumps(result))
-    result = instruct.main([str(run_copy), "zzz qqq the the", "--act-anyway", "--episodes", "2", "--goal", "4"])
+    result = instruct.run_command([str(run_copy), "zzz qqq the the", "--act-anyway", "--episodes", "2", "--goal", "4"])
     assert calls == [2] and result["acted"] is True and result["goal"] == 4
     assert "acting anyway (--act-anyway): the verdict was ambiguous" in capsys.readouterr().out
 
@@ -303,7 +308,7 @@ def test_instruct_reads_sentences_from_stdin_until_its_end(run_copy, tmp_path, c
     sentences = "Push the red ball in front of the blue ball.\n\n   \nzzz qqq the the\n"
     monkeypatch.setattr("sys.stdin", io.StringIO(sentences))
     out = tmp_path / "session.json"
-    results = instruct.main([str(run_copy), "--episodes", "2", "--json", str(out)])
+    results = instruct.run_command([str(run_copy), "--episodes", "2", "--json", str(out)])
     captured = capsys.readouterr()
     assert [r["verdict"] for r in results] == ["understood", "not understood"]
     assert calls == [2]  # one episode batch, for the sentence understood
@@ -331,7 +336,7 @@ def test_generalize_reports_verdicts_per_sentence_and_selective_figures(run_copy
     mine = tmp_path / "mine.json"
     mine.write_text(json.dumps({"clevr_patterns": ["Push the {subject} ball {relation} the {object} ball."]}))
     markdown = tmp_path / "yours.md"
-    result = generalize.main(
+    result = generalize.run_command(
         [str(run_copy), "--instructions", str(mine), "--episodes", "4", "--markdown", str(markdown)]
     )
     assert result["calibrated"] is True
@@ -366,8 +371,10 @@ def test_calibrate_fits_a_calibration_the_agent_then_uses(run_copy, tmp_path, ca
         )
     )
     out = tmp_path / "confidence.json"
-    record = calibrate.main([str(run_copy), "--data", str(data), "--out", str(out), "--json", str(tmp_path / "r.json")])
-    fitted = Calibration.read(out)
+    record = calibrate.run_command(
+        [str(run_copy), "--data", str(data), "--out", str(out), "--json", str(tmp_path / "r.json")]
+    )
+    fitted = read_calibration(out)
     assert fitted.features == calibrate.STUDY[calibrate.CHOSEN][0] and fitted.ensemble
     assert fitted.source["env"] == "clevr" and fitted.source["sentences"]["no_goal"] == 4
     held = record["results"][calibrate.CHOSEN]["held_out"]
@@ -380,7 +387,7 @@ def test_calibrate_fits_a_calibration_the_agent_then_uses(run_copy, tmp_path, ca
 
 
 def test_the_halves_alternate_within_each_goal_and_pattern():
-    from talar_jax.calibration import by_pattern, group_halves
+    from talar_jax.confidence.fit import by_pattern, group_halves
 
     assert group_halves([0, 0, 1, 0, 1]) == ["calibration", "held_out", "calibration", "calibration", "held_out"]
     assert by_pattern(6, 2) == ["calibration"] * 2 + ["held_out"] * 2 + ["calibration"] * 2

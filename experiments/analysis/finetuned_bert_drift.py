@@ -14,17 +14,16 @@ weights, and the codes the policy reads (the encoding layer on the fine-tuned em
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from experiments.cli import module_parser
+from experiments.cli import ArgumentParser, command
 from experiments.tsne import goal_grouping as tsne_goal_grouping
 from talar_jax import runtime
-from talar_jax.agent import AgentError, _latest_policy_params, find_method_folder
+from talar_jax.agent import AgentError, find_method_folder, read_policy_params
 from talar_jax.baselines import FinetunedBertConditioner
 from talar_jax.language import build_cache, load_encoder
 from talar_jax.language.bert import mean_pool
@@ -48,7 +47,7 @@ def drift(run_dir: str | Path, seed: int = 0) -> dict:
     config = json.loads((folder / "config.json").read_text())
     if not str(config.get("method", "")).startswith("finetuned-"):
         raise AgentError(f"{folder} is a {config.get('method')} run, not a finetuned-bert-* one")
-    params = _latest_policy_params(folder / "ifp" / "ppo")["conditioner"]
+    params = read_policy_params(folder)["conditioner"]
     seeds = jax.tree.leaves(params)[0].shape[0]
     if not 0 <= seed < seeds:
         raise AgentError(f"seed {seed} is not in this run (it has {seeds})")
@@ -83,18 +82,16 @@ def drift(run_dir: str | Path, seed: int = 0) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_command(argv: list[str] | None = None) -> None:
     runtime.start()
-    parser = module_parser("experiments.analysis.finetuned_bert_drift", __doc__)
+    parser = ArgumentParser(prog="python -m experiments.analysis.finetuned_bert_drift", description=__doc__)
     parser.add_argument("run_dir", type=Path, help="a finished finetuned-bert-* run (a run root or its method folder)")
     parser.add_argument("--seed", type=int, default=0, help="which of the run's seeds to measure (default: 0)")
     args = parser.parse_args(argv)
-    try:
-        print(json.dumps(drift(args.run_dir, args.seed), indent=1))
-    except AgentError as error:
-        sys.exit(f"error: {error}")
-    return 0
+    print(json.dumps(drift(args.run_dir, args.seed), indent=1))
 
+
+main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

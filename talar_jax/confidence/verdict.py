@@ -1,0 +1,87 @@
+"""What an agent makes of one sentence: act on it, ask which goal it means, or say it does not understand."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+UNDERSTOOD = "understood"
+AMBIGUOUS = "ambiguous"
+NOT_UNDERSTOOD = "not understood"
+VERDICTS = (UNDERSTOOD, AMBIGUOUS, NOT_UNDERSTOOD)
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdict:
+    """What an agent makes of one sentence.
+
+    Attributes:
+        sentence: the sentence.
+        verdict: ``"understood"``, ``"ambiguous"`` or ``"not understood"``.
+        goal: the goal the agent pursues (``"understood"`` only; None otherwise).
+        confidence: the calibrated probability that acting on the sentence pursues the goal it means (0 when the
+            acting seed's code decodes to no goal).
+        candidates: the likeliest goals with their (ensemble) posterior, best first (at most the calibration's
+            ``max_candidates``, each at least its ``candidate_floor`` but always the first).
+        familiarity: the sentence's largest cosine similarity to a training instruction (pooled encoder embedding).
+        decoded: the goal the acting seed's own code decodes to (None when no training instruction has that code).
+    """
+
+    sentence: str
+    verdict: str
+    goal: int | None
+    confidence: float
+    candidates: tuple[tuple[int, float], ...]
+    familiarity: float
+    decoded: int | None
+
+    @property
+    def acts(self) -> bool:
+        """Whether the agent acts on the sentence without being told to."""
+        return self.verdict == UNDERSTOOD
+
+    @property
+    def likeliest(self) -> int:
+        """The goal of the first candidate (what ``--act-anyway`` would be scored on when no goal is decoded)."""
+        return self.candidates[0][0]
+
+    def to_json(self, goal_names: Sequence[str] | None = None) -> dict[str, Any]:
+        """A JSON-serialisable record (goal names added when ``goal_names`` is given)."""
+
+        def name(goal):
+            return None if goal is None or goal_names is None else goal_names[goal]
+
+        record = {
+            "sentence": self.sentence,
+            "verdict": self.verdict,
+            "goal": self.goal,
+            "confidence": round(float(self.confidence), 4),
+            "candidates": [{"goal": g, "score": round(float(s), 4)} for g, s in self.candidates],
+            "familiarity": round(float(self.familiarity), 4),
+            "decoded_goal": self.decoded,
+        }
+        if goal_names is not None:
+            record["goal_name"] = name(self.goal)
+            record["decoded_goal_name"] = name(self.decoded)
+            for candidate in record["candidates"]:
+                candidate["name"] = name(candidate["goal"])
+        return record
+
+    def describe(self, goal_names: Sequence[str]) -> str:
+        """One line for a person: the goal, or why the agent does not act and what it could mean."""
+        listed = [f"{goal_names[g]} ({s:.2f})" for g, s in self.candidates]
+        if self.verdict == UNDERSTOOD:
+            return f'understood: "{self.sentence}" means {goal_names[self.goal]} (confidence {self.confidence:.2f})'
+        if self.verdict == AMBIGUOUS:
+            if len(listed) == 1:
+                options = f"perhaps {listed[0]}?"
+            else:
+                options = "could be " + ", ".join(listed[:-1]) + f" or {listed[-1]}"
+            return (
+                f'not sure: "{self.sentence}" {options} (confidence {self.confidence:.2f}); rephrase, or --act-anyway'
+            )
+        return (
+            f'not understood: "{self.sentence}" names nothing this agent was trained on (confidence '
+            f"{self.confidence:.2f}, closest: {listed[0]}); rephrase, or --act-anyway"
+        )
