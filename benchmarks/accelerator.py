@@ -39,7 +39,7 @@ import envs
 from benchmarks.env_sps import BenchConfig, time_backend
 from benchmarks.machine import machine_info
 from envs.runtime import program_compiler_options
-from experiments.cli import ArgumentParser, check_output_path, valid_or_exit
+from experiments.cli import ArgumentParser, check_output_path, exit_status
 from experiments.config import ExperimentConfig
 from experiments.recipes import get_recipe
 from talar_jax import runtime
@@ -362,7 +362,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--batches must all be >= 1, got {' '.join(map(str, args.batches))}")
     if args.seeds is not None and args.seeds < 1:
         parser.error(f"--seeds must be >= 1, got {args.seeds}")
-    valid_or_exit(check_output_path, args.out, "--out")
+    check_output_path(args.out, "--out")
     return args
 
 
@@ -400,4 +400,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import envs
 from benchmarks.finetuned_bert import lookups, measured_update, recipe_steps, report, time_conditioners
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from experiments.config import default_config
 from talar_jax import runtime
 from talar_jax.baselines import EncodingLayerConditioner
@@ -93,4 +93,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -21,7 +21,7 @@ import numpy as np
 
 import envs
 from benchmarks.original_style import original_steps_per_second
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from talar_jax import runtime
 
 RESULTS_DIR = Path(__file__).parent / "results"
@@ -175,4 +175,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     np.set_printoptions(precision=3)
-    main()
+    raise SystemExit(exit_status(main))

@@ -24,7 +24,7 @@ import numpy as np
 
 import envs
 from benchmarks.machine import machine_info
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from experiments.config import default_config
 from talar_jax import runtime
 from talar_jax.baselines import EncodingLayerConditioner, FinetunedBertConditioner
@@ -188,4 +188,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.env_sps import BENCH_CONFIGS, RESULTS_DIR, time_backend
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from talar_jax import runtime
 
 BEFORE_COMMIT = "3ffadf1"
@@ -108,4 +108,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import parse_or_exit
+from experiments.cli import exit_status, parse
 from talar_jax import runtime
 from talar_jax.language import build_cache, load_encoder
 from talar_jax.language.cache import cache_path
@@ -147,4 +147,4 @@ def _distinct_prefixes(cache) -> int:
 
 
 if __name__ == "__main__":
-    main(parse_or_exit(Args, None, description=__doc__))
+    raise SystemExit(exit_status(lambda: main(parse(Args, None, description=__doc__))))

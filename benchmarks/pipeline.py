@@ -33,7 +33,7 @@ import experiments.methods.translation
 import experiments.pipeline
 from benchmarks.env_sps import BenchConfig, PhysicsClock
 from benchmarks.machine import machine_info
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from experiments.config import default_config
 from experiments.pipeline import run
 from talar_jax import runtime
@@ -223,4 +223,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -38,7 +38,7 @@ import envs
 from benchmarks.accelerator import time_chunk
 from benchmarks.env_sps import BenchConfig, time_backend
 from benchmarks.machine import machine_info
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.conditioning import GoalOneHotConditioner
@@ -261,4 +261,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

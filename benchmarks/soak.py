@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 import envs
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from talar_jax import runtime
 
 BLOWUP = 0.1
@@ -161,4 +161,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(exit_status(main))

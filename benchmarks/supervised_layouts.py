@@ -27,7 +27,7 @@ import numpy as np
 
 from benchmarks.machine import machine_info
 from envs.runtime import program_compiler_options
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from experiments.config import default_config
 from experiments.methods.base import translator_readout
 from talar_jax import runtime, talar, task_language
@@ -213,4 +213,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

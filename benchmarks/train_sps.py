@@ -23,7 +23,7 @@ import numpy as np
 
 import envs
 from benchmarks.machine import machine_info
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, exit_status
 from talar_jax import runtime
 from talar_jax.conditioning import GoalOneHotConditioner
 from talar_jax.ppo import PPOConfig, derive, make_train
@@ -171,4 +171,4 @@ def _write(args: argparse.Namespace, rows: list[dict]) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

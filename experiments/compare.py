@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated
 
 import numpy as np
-import tyro
 
-from experiments.cli import check_outputs_or_exit, env_argument, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import FLATTEN, check_outputs, checked, command, parse, peek
 from experiments.config import ExperimentConfig, default_config, run_name
+from experiments.lock import hold
 from experiments.methods import PAPER_COMPARISON, method_label, method_names
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
 from experiments.recipes import get_recipe, recipe_names
@@ -34,7 +33,7 @@ NOT_A_BASELINE: tuple[str, ...] = ("talar", "handcrafted")
 class CompareArgs:
     """Which methods to compare, on the experiment settings every method shares."""
 
-    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig()
+    experiment: ExperimentConfig = dataclasses.field(default=ExperimentConfig(), metadata=FLATTEN)
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe, as ``default_config(env)``; ``--out`` defaults to runs/compare-<env>; ``--method`` is set per
     method)."""
@@ -65,10 +64,10 @@ def parse_args(cls, argv: list[str] | None, description: str | None = None):
     (``default_config(env)``), so ``compare --env kitchen`` runs the kitchen command's settings."""
     default = None
     if cls is CompareArgs:
-        env = env_argument(argv, default="clevr")
+        env = peek(argv, "--env", default="clevr")
         if env in recipe_names():
             default = CompareArgs(experiment=dataclasses.replace(default_config(env), out=None))
-    return parse_or_exit(cls, argv, default=default, description=description)
+    return parse(cls, argv, default=default, description=description)
 
 
 def _checked(args) -> Path:
@@ -80,13 +79,13 @@ def _checked(args) -> Path:
     return [base_config(args.comparison(k)) for k in args.patterns][0].out
 
 
-def main_with(cls, function, argv: list[str] | None, description: str | None):
+def run_parsed(cls, function, argv: list[str] | None, description: str | None):
     """Parses ``cls`` from the command line and calls ``function`` holding the output folder's lock; a bad option
-    or output folder, or a folder another command holds, prints one ``error:`` line and exits with status 2."""
+    or output folder, or a folder another command holds, raises ``experiments.cli.UsageError`` before any work."""
     args = parse_args(cls, argv, description)
-    out = valid_or_exit(_checked, args)
-    check_outputs_or_exit((out, "--out", "folder"))
-    with hold_or_exit(out):
+    out = checked(_checked, args)
+    check_outputs((out, "--out", "folder"))
+    with hold(out):
         return function(args)
 
 
@@ -171,11 +170,13 @@ def write_fig11(base: ExperimentConfig, methods: tuple[str, ...], suffix: str = 
     )
 
 
-def main(argv: list[str] | None = None) -> dict[str, dict[str, np.ndarray]]:
-    """``python -m experiments.compare``: a bad option prints one ``error:`` line and exits with status 2."""
+def run_command(argv: list[str] | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """``python -m experiments.compare`` for Python callers: the final success rates."""
     runtime.start()
-    return main_with(CompareArgs, compare, argv, __doc__)
+    return run_parsed(CompareArgs, compare, argv, __doc__)
 
+
+main = command(run_command, resumes=True)
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 
 import envs
-from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import check_outputs, checked, command, parse
 from experiments.config import default_config
+from experiments.lock import hold
 from experiments.pipeline import run
 from experiments.recipes import HRLRecipe, get_recipe, recipe_names
 from talar_jax import runtime
@@ -285,15 +286,19 @@ def hrl(args: HRLArgs) -> dict[str, Any]:
     return summary
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
+def run_command(argv: list[str] | None = None) -> dict[str, Any]:
+    """``python -m experiments.hrl`` for Python callers: the study's summary. Bad input, and a folder another command
+    holds, raise ``experiments.cli.UsageError`` before any work."""
     runtime.start()
-    args = parse_or_exit(HRLArgs, argv, description=__doc__)
-    resolved = valid_or_exit(resolve, args)
+    args = parse(HRLArgs, argv, description=__doc__)
+    resolved = checked(resolve, args)
     low_level = None if (resolved.run_dir / "talar" / "ifp" / "stage.json").is_file() else resolved.run_dir
-    check_outputs_or_exit((resolved.out, "--out", "folder"), (low_level, "--run-dir", "folder"))
-    with hold_or_exit(resolved.out):  # bad input and a folder another command holds: one error line, status 2
+    check_outputs((resolved.out, "--out", "folder"), (low_level, "--run-dir", "folder"))
+    with hold(resolved.out):
         return hrl(args)
 
 
+main = command(run_command, resumes=True)
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

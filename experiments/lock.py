@@ -21,6 +21,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from experiments.cli import UsageError, program
+
 LOCK_FILE = ".lock"
 
 _held: dict[str, list[int]] = {}
@@ -28,8 +30,9 @@ _held: dict[str, list[int]] = {}
 _guard = threading.Lock()
 
 
-class FolderInUseError(RuntimeError):
-    """The run folder is held by another process (the message names the folder and that process)."""
+class FolderInUseError(UsageError):
+    """The run folder is held by another process (the message names the folder and that process). A command stops on
+    it as on any bad input: one ``error:`` line, exit status 2, nothing written."""
 
 
 def holder(folder: str | Path) -> dict[str, Any] | None:
@@ -53,8 +56,6 @@ def _describe(folder: Path) -> str:
 
 
 def _command_line() -> str:
-    from experiments.help_text import program
-
     return " ".join([program(), *(shlex.quote(arg) for arg in sys.argv[1:])])
 
 

@@ -27,8 +27,9 @@ import jax
 import numpy as np
 
 import envs
-from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import check_outputs, checked, command, parse
 from experiments.config import QUICK_PPO_ENV_STEPS, quick_ppo
+from experiments.lock import hold
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.checkpoint import write_json_atomic
@@ -239,16 +240,18 @@ def run(args: OracleArgs) -> float:
     return float(summary["success"])
 
 
-def main(argv: list[str] | None = None) -> float:
-    """``python -m experiments.oracle``: a bad option or output folder, or a folder another command holds, prints
-    one ``error:`` line and exits with status 2."""
+def run_command(argv: list[str] | None = None) -> float:
+    """``python -m experiments.oracle`` for Python callers: the oracle's success. A bad option or output folder, or a
+    folder another command holds, raises ``experiments.cli.UsageError`` before any work."""
     runtime.start()
-    args = parse_or_exit(OracleArgs, argv, description=__doc__)
-    valid_or_exit(lambda: (get_recipe(args.env), collector_of(args), oracle_ppo_config(args)))
-    check_outputs_or_exit((args.out, "--out", "folder"))
-    with hold_or_exit(args.out):
+    args = parse(OracleArgs, argv, description=__doc__)
+    checked(lambda: (get_recipe(args.env), collector_of(args), oracle_ppo_config(args)))
+    check_outputs((args.out, "--out", "folder"))
+    with hold(args.out):
         return run(args)
 
 
+main = command(run_command, resumes=True)
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -18,7 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import EXIT_INTERRUPTED, CommandError, check_outputs, checked, command, parse
+from experiments.lock import hold
 from talar_jax import runtime
 
 
@@ -116,33 +117,47 @@ def selected(args: PaperArgs) -> list[Job]:
     return [job for job in every if not args.only or job.name in args.only]
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_command(argv: list[str] | None = None) -> int:
+    """``python -m experiments.paper`` for Python callers: 0 once every job ran (a job that fails raises
+    ``experiments.cli.CommandError`` with its status; bad input raises ``experiments.cli.UsageError``)."""
     runtime.start()
-    args = parse_or_exit(PaperArgs, argv, description=__doc__)
-    todo = valid_or_exit(selected, args)
+    args = parse(PaperArgs, argv, description=__doc__)
+    todo = checked(selected, args)
     if args.dry_run:
         return run_jobs(args, todo)
-    check_outputs_or_exit((args.root, "--root", "folder"))
-    with hold_or_exit(args.root):  # one reproduction per root at a time (each command also holds its own folder)
+    check_outputs((args.root, "--root", "folder"))
+    with hold(args.root):  # one reproduction per root at a time (each command also holds its own folder)
         return run_jobs(args, todo)
+
+
+def run_job(command: list[str]) -> int:
+    """Runs one job's command to its end; its exit status. A Ctrl-C reaches the job too (one process group): the job
+    stops at its next step, says so in its one line and ends with status 130, which is returned as it is."""
+    with subprocess.Popen(command) as process:
+        try:
+            return process.wait()
+        except KeyboardInterrupt:
+            return process.wait()
 
 
 def run_jobs(args: PaperArgs, todo: list[Job]) -> int:
-    """Runs (or with --dry-run prints) the jobs one after another; the status of the first that fails, else 0."""
+    """Runs (or with --dry-run prints) the jobs one after another; 0, or 130 when a job was stopped by Ctrl-C (it
+    said so itself); a job that fails otherwise raises ``CommandError`` with its status."""
     for index, job in enumerate(todo):
         command = [sys.executable, "-m", *job.command(existing_only=not args.dry_run)]
         line = shlex.join(["python", *command[1:]])
         print(f"[paper {index + 1}/{len(todo)}] {job.name} ({job.paper}): {line}", flush=True)
         if args.dry_run:
             continue
-        status = subprocess.run(command, check=False).returncode
-        if status != 0:
-            print(
-                f"error: {job.name} stopped with status {status}; run the same command again to resume", file=sys.stderr
-            )
+        status = run_job(command)
+        if status == EXIT_INTERRUPTED:
             return status
+        if status != 0:
+            raise CommandError(f"{job.name} stopped with status {status}; run the same command again to resume", status)
     return 0
 
+
+main = command(run_command, resumes=True)
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated
 
-import tyro
-
-from experiments.cli import write_output
-from experiments.compare import CompareArgs, base_config, compare, finished_summaries, main_with
+from experiments.cli import FLATTEN, command, write_output
+from experiments.compare import CompareArgs, base_config, compare, finished_summaries, run_parsed
 from experiments.config import ExperimentConfig, default_config
 from experiments.methods import method_label
 from talar_jax import runtime
@@ -33,8 +30,8 @@ PAPER = {
 class PatternsArgs:
     """Table 3 settings."""
 
-    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = dataclasses.replace(
-        default_config("clevr"), out=Path("runs/patterns-clevr")
+    experiment: ExperimentConfig = dataclasses.field(
+        default=dataclasses.replace(default_config("clevr"), out=Path("runs/patterns-clevr")), metadata=FLATTEN
     )
     """The shared settings, as ``experiments.clevr`` takes them (one output folder: shared oracle, dataset and task
     language; ``--num-patterns`` and ``--method`` are set per row and column)."""
@@ -87,11 +84,13 @@ def patterns(args: PatternsArgs) -> str:
     return table
 
 
-def main(argv: list[str] | None = None) -> str:
-    """``python -m experiments.patterns``: a bad option prints one ``error:`` line and exits with status 2."""
+def run_command(argv: list[str] | None = None) -> str:
+    """``python -m experiments.patterns`` for Python callers: the table it wrote."""
     runtime.start()
-    return main_with(PatternsArgs, patterns, argv, __doc__)
+    return run_parsed(PatternsArgs, patterns, argv, __doc__)
 
+
+main = command(run_command, resumes=True)
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import envs
-from experiments.cli import check_outputs_or_exit, hold_or_exit, parse_or_exit, valid_or_exit
+from experiments.cli import check_outputs, checked, parse
 from experiments.config import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, make_env, resolve, run_name
 from experiments.lock import hold
 from experiments.methods import MethodContext, MethodSetup, get_method
@@ -164,11 +164,11 @@ def _run(config: ExperimentConfig) -> dict[str, Any]:
     return summary
 
 
-def checked_or_exit(config: ExperimentConfig) -> ExperimentConfig:
-    """``check_inputs(config)`` and its output folder (``--out``), or one ``error: ...`` line on stderr and exit
-    status 2."""
-    config = valid_or_exit(check_inputs, config)
-    check_outputs_or_exit((config.out, "--out", "folder"))
+def checked_config(config: ExperimentConfig) -> ExperimentConfig:
+    """``check_inputs(config)`` and its output folder (``--out``); bad input raises ``UsageError`` (one ``error:``
+    line and status 2 on the command line)."""
+    config = checked(check_inputs, config)
+    check_outputs((config.out, "--out", "folder"))
     return config
 
 
@@ -184,16 +184,13 @@ def description(env: str) -> str:
     )
 
 
-def command(env: str):
-    """``main(argv)`` of a per-env command (``experiments.clevr`` / ``experiments.kitchen``): ``default_config(env)``
-    on the command line; a bad option or output folder prints one line and exits with status 2 before any stage
-    runs, and so does a folder another command is running in."""
-
-    def main(argv: list[str] | None = None) -> dict[str, Any]:
-        runtime.start()
-        config = parse_or_exit(ExperimentConfig, argv, default=default_config(env), description=description(env))
-        config = checked_or_exit(config)
-        with hold_or_exit(config.out):
-            return run(config)
-
-    return main
+def run_command(env: str, argv: list[str] | None = None) -> dict[str, Any]:
+    """``python -m experiments.<env>`` (``experiments.clevr`` / ``experiments.kitchen``) for Python callers:
+    ``default_config(env)`` changed by the command line ``argv``, run holding the output folder's lock; returns the
+    run's summary. A bad option or output folder, or a folder another command is running in, raises ``UsageError``
+    before any stage runs."""
+    runtime.start()
+    config = parse(ExperimentConfig, argv, default=default_config(env), description=description(env))
+    config = checked_config(config)
+    with hold(config.out):
+        return run(config)

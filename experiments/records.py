@@ -36,10 +36,9 @@ import json
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
-from experiments.cli import ArgumentParser, check_outputs_or_exit, fail
+from experiments.cli import ArgumentParser, CommandError, check_outputs, checked, command
 from talar_jax.report import RECORD_FILES
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
@@ -174,9 +173,7 @@ def annotate(results: Path = RESULTS, check: bool = False) -> list[str]:
 
 
 def parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(
-        prog="python -m experiments.records", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = ArgumentParser(prog="python -m experiments.records", description=__doc__)
     commands = parser.add_subparsers(dest="subcommand", required=True)
     to_record = commands.add_parser("record", help="copy a finished method folder's outputs into results/<name>")
     to_record.add_argument("method_dir", type=Path, help="a finished method folder, e.g. runs/kitchen/talar")
@@ -194,27 +191,25 @@ def parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> None:
+def run_command(argv: list[str] | None = None) -> None:
+    """``python -m experiments.records`` for Python callers; bad input raises ``experiments.cli.UsageError``."""
     args = parser().parse_args(argv)
     if args.subcommand in ("record", "restore"):
-        check_outputs_or_exit((args.dest, "DEST", "folder"))
+        check_outputs((args.dest, "DEST", "folder"))
     if args.subcommand == "record":
-        try:
-            provenance = record(args.method_dir, args.dest, args.command, args.note)
-        except ValueError as error:
-            fail(str(error))
+        provenance = checked(record, args.method_dir, args.dest, args.command, args.note)
         print(f"recorded {args.method_dir} -> {args.dest}: {json.dumps(provenance)}")
     elif args.subcommand == "restore":
-        try:
-            written = restore(args.record, args.dest)
-        except ValueError as error:
-            fail(str(error))
+        written = checked(restore, args.record, args.dest)
         print(f"restored {args.record} -> {args.dest}: {', '.join(written)}")
     else:
         lacking = annotate(args.results, args.check)
         if lacking:
-            sys.exit("summaries without env/method/seeds/steps/patterns/commit:\n" + "\n".join(lacking))
+            missing = "; ".join(lacking)
+            raise CommandError(f"summaries without env/method/seeds/steps/patterns/commit: {missing}", 1)
 
+
+main = command(run_command)
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -32,19 +32,11 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-import tyro
-
-from experiments.cli import (
-    check_outputs_or_exit,
-    env_argument,
-    fail,
-    hold_or_exit,
-    parse_or_exit,
-    valid_or_exit,
-)
+from experiments.cli import FLATTEN, POSITIONAL, UsageError, check_outputs, checked, command, parse, peek
 from experiments.config import ExperimentConfig, default_config
+from experiments.lock import hold
 from experiments.pipeline import check_inputs, finished_summary, run, stage_oracle_key
 from experiments.recipes import recipe_names
 from experiments.study_report import write_outputs
@@ -77,10 +69,12 @@ METHOD_STUDIES: dict[str, tuple[str, ...]] = {
 class StudyArgs:
     """Which study, over which settings, on the experiment settings every run shares."""
 
-    name: tyro.conf.Positional[Literal["ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert"]]
+    name: Literal["ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert"] = dataclasses.field(
+        metadata=POSITIONAL
+    )
     """The study: ablation (Fig. 7), dataset-size (Fig. 13), aligned (Fig. 12), end-to-end (Fig. 15) or
     finetuned-bert (Fig. 14)."""
-    experiment: Annotated[ExperimentConfig, tyro.conf.arg(name="")] = ExperimentConfig(env="kitchen")
+    experiment: ExperimentConfig = dataclasses.field(default=ExperimentConfig(env="kitchen"), metadata=FLATTEN)
     """The shared settings, as the env commands take them (``--env``, ``--seeds``, ``--talar.*``, ...; defaults: the
     env's recipe; ``--out`` defaults to runs/study-<name>-<env>)."""
     predicates: tuple[int, ...] = (2, 4, 6)
@@ -177,26 +171,29 @@ def study(args: StudyArgs, configs: dict[str, ExperimentConfig] | None = None) -
     finals = {label: finals[label] for label in configs if label in finals}
     if not finals:
         where = first.parent
-        raise SystemExit(f"error: no setting of the {args.name} study has finished in {where}: nothing to report")
+        raise UsageError(f"no setting of the {args.name} study has finished in {where}: nothing to report")
     print(write_outputs(args, configs, finals))
     return finals
 
 
-def main(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
+def run_command(argv: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    """``python -m experiments.study`` for Python callers: the final success of every finished setting."""
     runtime.start()
-    env = env_argument(argv, default="kitchen")
+    env = peek(argv, "--env", default="kitchen")
     default = None
-    if env in recipe_names():
-        default = StudyArgs(tyro.MISSING, experiment=dataclasses.replace(default_config(env), out=None))
-    args = parse_or_exit(StudyArgs, argv, default=default, description=__doc__)
-    configs = valid_or_exit(settings, args)
+    if env in recipe_names():  # the study's name stays a required argument: a default is only needed for the rest
+        default = StudyArgs(STUDIES[0], experiment=dataclasses.replace(default_config(env), out=None))
+    args = parse(StudyArgs, argv, default=default, description=__doc__)
+    configs = checked(settings, args)
     out = next(iter(configs.values())).out.parent  # the settings' folders lie in the study's
-    check_outputs_or_exit((out, "--out", "folder"))
+    check_outputs((out, "--out", "folder"))
     if args.report_only and not out.is_dir():
-        fail(f"no setting of the {args.name} study has finished in {out}: nothing to report")
-    with hold_or_exit(out):
+        raise UsageError(f"no setting of the {args.name} study has finished in {out}: nothing to report")
+    with hold(out):
         return study(args, configs)
 
 
+main = command(run_command, resumes=True)
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -19,9 +19,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import tyro
 
-from experiments.cli import check_outputs_or_exit, fail, parse_or_exit
+from experiments.cli import POSITIONAL, check_outputs, command, parse
 from experiments.methods import method_label
 from experiments.recipes import get_recipe
 from experiments.reports import trained_codes
@@ -34,7 +33,7 @@ from talar_jax.report import plot_tsne_grid
 
 @dataclasses.dataclass(frozen=True)
 class TsneArgs:
-    run_dirs: tyro.conf.Positional[tuple[Path, ...]]
+    run_dirs: tuple[Path, ...] = dataclasses.field(metadata=POSITIONAL)
     """Finished run folders of one env (run roots or method folders)."""
     out: Path | None = None
     """The figure to write, with its record beside it (<out>.json); default: tsne-seed<K>.png in the first
@@ -145,18 +144,17 @@ def tsne(args: TsneArgs) -> Path:
     return path
 
 
-def main(argv: list[str] | None = None) -> Path:
-    """``python -m experiments.tsne``: a bad option or output path prints one ``error:`` line and exits with status
-    2, before any run is read."""
+def run_command(argv: list[str] | None = None) -> Path:
+    """``python -m experiments.tsne`` for Python callers: the figure's path. A bad option or output path raises
+    ``experiments.cli.UsageError`` before any run is read."""
     runtime.start()
-    args = parse_or_exit(TsneArgs, argv, description=__doc__)
+    args = parse(TsneArgs, argv, description=__doc__)
     figure = args.figure()
-    check_outputs_or_exit((figure, "--out", "file"), (figure.with_suffix(".json"), "--out", "file"))
-    try:
-        return tsne(args)
-    except AgentError as error:
-        fail(str(error))
+    check_outputs((figure, "--out", "file"), (figure.with_suffix(".json"), "--out", "file"))
+    return tsne(args)
 
+
+main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

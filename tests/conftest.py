@@ -20,7 +20,7 @@ def clevr_run(tmp_path_factory):
     from experiments import clevr
 
     out = tmp_path_factory.mktemp("clevr")
-    summary = clevr.main([*QUICK, "--out", str(out)])
+    summary = clevr.run_command([*QUICK, "--out", str(out)])
     return out, summary
 
 
@@ -36,7 +36,7 @@ def kitchen_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("kitchen")
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
-        kitchen.main([*[a for a in QUICK if a != "--no-deployment-strip"], "--out", str(out)])
+        kitchen.run_command([*[a for a in QUICK if a != "--no-deployment-strip"], "--out", str(out)])
     return out, printed.getvalue()
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import accelerator
+from experiments.cli import exit_status
 
 ROOT = Path(__file__).resolve().parent.parent
 HEADER = {
@@ -83,8 +84,6 @@ def test_out_of_memory_is_recorded_and_ends_the_larger_sizes_of_its_series(tmp_p
 
 @pytest.mark.parametrize("args", [["--batches", "1024", "-8"], ["--seeds", "0"], ["--budget-s", "-1"]])
 def test_bad_sizes_are_one_line_errors(args, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        accelerator.main(args)
-    assert exit_info.value.code == 2
+    assert exit_status(accelerator.main, args) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {args[0]} must")

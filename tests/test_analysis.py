@@ -30,7 +30,7 @@ def test_fig11_reads_each_runs_codes_and_leaves_out_one_hot(clevr_run, tmp_path,
 
     monkeypatch.setattr(tsne, "plot_tsne_grid", fake_grid)
     figure = tmp_path / "fig11.png"
-    tsne.main([str(out), str(onehot), "--out", str(figure), "--seed", "1"])
+    tsne.run_command([str(out), str(onehot), "--out", str(figure), "--seed", "1"])
     (name,) = drawn["encodings"]
     assert name.startswith("TALAR (NN goal ") and drawn["path"] == figure
     np.testing.assert_array_equal(drawn["encodings"][name], tables[1])
@@ -90,7 +90,7 @@ def test_code_grouping_separates_tight_goal_groups_from_split_ones():
 
 
 def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys):
-    from experiments.analysis.early_curves import main
+    from experiments.analysis.early_curves import main, run_command
 
     def write(folder, steps, per_seed):
         folder.mkdir()
@@ -110,8 +110,8 @@ def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys
     assert "| long | 2 | 20.0 (10/30) | 60.0 (50/70) | 40.0 (30/50) | 50/- |" in out  # 300 is past --until
     assert "| short | 1 | 0.0 | 25.0 | 12.5 | 25/- |" in out
     # test instructions are not in the synthetic rows: the plot needs both splits, and says so
-    with pytest.raises(SystemExit, match="no evaluation on test instructions"):
-        main(["--until", "250", "--plot", str(tmp_path / "c.png"), f"long={tmp_path / 'long'}"])
+    with pytest.raises(ValueError, match="no evaluation on test instructions"):
+        run_command(["--until", "250", "--plot", str(tmp_path / "c.png"), f"long={tmp_path / 'long'}"])
     both = tmp_path / "both"
     both.mkdir()
     evaluation = {f"eval/{s}/success_{k}": [0.5] for s in ("train", "test") for k in ("per_seed", "per_goal")}
@@ -119,14 +119,14 @@ def test_early_curves_compares_at_shared_steps_up_to_the_budget(tmp_path, capsys
     (both / "ifp_metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows))
     assert main(["--until", "250", "--plot", str(tmp_path / "c.png"), f"both={both}"]) == 0
     assert (tmp_path / "c.png").stat().st_size > 1000
-    with pytest.raises(SystemExit, match="no evaluation on train instructions at or before 50"):
-        main(["--until", "50", f"long={tmp_path / 'long'}"])
-    with pytest.raises(SystemExit, match="LABEL=FOLDER"):
-        main(["--until", "50", str(tmp_path / "long")])
+    with pytest.raises(ValueError, match="no evaluation on train instructions at or before 50"):
+        run_command(["--until", "50", f"long={tmp_path / 'long'}"])
+    assert "LABEL=FOLDER" in _error(capsys, main, ["--until", "50", str(tmp_path / "long")])
 
 
 def test_finetuned_bert_drift_measures_weight_change_and_grouping(tmp_path):
-    from experiments.analysis.finetuned_bert_drift import goal_grouping, main, relative_change
+    from experiments.analysis.finetuned_bert_drift import goal_grouping, relative_change, run_command
+    from talar_jax.agent import AgentError
 
     pretrained = {"a": np.ones((3, 4)), "b": {"c": -2 * np.ones(5)}}
     assert abs(relative_change(jax.tree.map(lambda x: 1.1 * x, pretrained), pretrained) - 0.1) < 1e-6
@@ -140,8 +140,8 @@ def test_finetuned_bert_drift_measures_weight_change_and_grouping(tmp_path):
     (folder / "ifp").mkdir(parents=True)
     (folder / "ifp" / "stage.json").write_text("{}")
     (folder / "config.json").write_text(json.dumps({"method": "bert-binary", "env": "kitchen"}))
-    with pytest.raises(SystemExit, match="is a bert-binary run, not a finetuned-bert"):
-        main([str(folder)])
+    with pytest.raises(AgentError, match="is a bert-binary run, not a finetuned-bert"):
+        run_command([str(folder)])
 
 
 def test_translator_robustness_agreement_and_the_swapped_translator():

@@ -1,16 +1,18 @@
 """Bad input to any command: one ``error:`` line (two at most), exit status 2 and nothing on disk, before any work.
-Parse errors, typos (with tyro's "did you mean"), values a config rejects, output paths that cannot be written,
-a run folder another command holds; an explicit option under ``--quick``; help pages in plain text with every
-option described."""
+Parse errors, typos (with a "did you mean" hint), values a config rejects, output paths that cannot be written,
+a run folder another command holds, an .mp4 without ffmpeg; an explicit option under ``--quick``; help pages in plain
+text with every option described; Ctrl-C as one line and exit status 130."""
 
 import dataclasses
 import io
+import json
 import os
+import pty
 import re
+import signal
 import subprocess
 import sys
 import textwrap
-from contextlib import redirect_stdout
 from pathlib import Path
 
 import pytest
@@ -29,7 +31,7 @@ from experiments import (
     study,
     tsne,
 )
-from experiments.cli import check_output_path, output_path_problem, parse_or_exit, plain
+from experiments.cli import check_output_path, output_path_problem, parse, plain
 from experiments.config import ExperimentConfig, default_config, resolve
 from experiments.lock import FolderInUseError, hold, holder
 from experiments.recipes import get_recipe
@@ -50,9 +52,7 @@ def _error(capsys, main, argv) -> str:
     """Runs a command's ``main`` expecting exit status 2; returns its stderr (one or two lines, the first an
     ``error:`` line, no traceback)."""
     capsys.readouterr()
-    with pytest.raises(SystemExit) as exit_info:
-        main(argv)
-    assert exit_info.value.code == 2
+    assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     lines = err.splitlines()
     assert 1 <= len(lines) <= 2 and lines[0].startswith("error: ") and "Traceback" not in err, err
@@ -93,9 +93,9 @@ def test_a_value_that_does_not_parse_gets_one_line(tmp_path, capsys):
     err = _error(capsys, clevr.main, ["--seeds", "abc", "--out", str(out)])
     assert err == "error: --seeds: not an integer: 'abc'"
     assert "--ifp.learning-rate: not a number: 'x'" in _error(capsys, kitchen.main, ["--ifp.learning-rate", "x"])
-    assert "--seeds needs a value" in _error(capsys, clevr.main, ["--out", str(out), "--seeds"])
+    assert "--seeds: expected one argument" in _error(capsys, clevr.main, ["--out", str(out), "--seeds"])
     assert "unexpected argument: 3" in _error(capsys, clevr.main, ["--quick", "3", "--out", str(out)])
-    assert "--predicates: cannot read 'x'" in _error(capsys, study.main, ["ablation", "--predicates", "x"])
+    assert "--predicates: not an integer: 'x'" in _error(capsys, study.main, ["ablation", "--predicates", "x"])
     assert not out.exists()
 
 
@@ -112,8 +112,8 @@ def test_a_typo_gets_one_line_with_the_hint(tmp_path, capsys):
 def test_a_study_name_that_is_not_one_gets_one_line(tmp_path, capsys):
     out = tmp_path / "study"
     err = _error(capsys, study.main, ["foo", "--out", str(out)])
-    assert "invalid choice 'foo'; choose one of ablation, dataset-size, aligned, end-to-end, finetuned-bert" in err
-    assert "missing NAME (one of ablation" in _error(capsys, study.main, ["--out", str(out)])
+    assert "invalid choice: 'foo' (choose from 'ablation', 'dataset-size', 'aligned', 'end-to-end', 'finetuned-b" in err
+    assert "arguments are required: NAME" in _error(capsys, study.main, ["--out", str(out)])
     assert not out.exists()
 
 
@@ -307,7 +307,7 @@ def test_the_lock_is_reentrant_within_a_process(tmp_path):
 
 
 def test_an_explicit_budget_wins_over_quick():
-    parsed = parse_or_exit(
+    parsed = parse(
         ExperimentConfig,
         ["--quick", "--ifp.total-env-steps", "16384", "--talar.rg-steps", "500"],
         default=default_config("clevr"),
@@ -331,103 +331,105 @@ def test_the_oracle_keeps_its_explicit_options_under_quick():
 
 # --- help pages ----------------------------------------------------------------------------------------------------
 
-TYRO_COMMANDS = {
-    "clevr": (clevr.main, []),
-    "kitchen": (kitchen.main, []),
-    "compare": (compare.main, []),
-    "patterns": (patterns.main, []),
-    "study": (study.main, []),
-    "hrl": (hrl.main, []),
-    "oracle": (oracle.main, []),
-    "paper": (paper.main, []),
-    "instruct": (instruct.main, []),
-    "generalize": (generalize.main, []),
-    "tsne": (tsne.main, []),
+COMMANDS = {
+    "clevr": clevr.main,
+    "kitchen": kitchen.main,
+    "compare": compare.main,
+    "patterns": patterns.main,
+    "study": study.main,
+    "hrl": hrl.main,
+    "oracle": oracle.main,
+    "paper": paper.main,
+    "instruct": instruct.main,
+    "generalize": generalize.main,
+    "tsne": tsne.main,
 }
 
 
-SECTION = re.compile(r"^[\s│╭─]*([\w.]+ )?(positional arguments|options)\b")
-
-
 def _split_help(help_text: str) -> tuple[str, list[str]]:
-    """(the opening text, the lines of the option sections) of a tyro help page, framed or plain."""
+    """(the opening text, the lines of the argument sections) of an argparse help page."""
     lines = help_text.splitlines()
-    first = next(i for i, line in enumerate(lines) if SECTION.match(line))
+    first = next(i for i, line in enumerate(lines) if re.match(r"(positional arguments|options):$", line))
     return "\n".join(lines[:first]), lines[first:]
 
 
 def _undescribed(help_text: str) -> list[str]:
-    """Options of a tyro help page whose description is only its default (or nothing)."""
+    """Arguments of a help page whose description is only its default (or nothing); ``--help`` itself aside."""
     _, sections = _split_help(help_text)
     entries: list[list[str]] = []
-    for raw in sections:
-        line = re.sub(r"^[│\s]*|[│\s]*$", "", raw)
-        if not line or SECTION.match(raw) or not line.strip("-─ ╭╰╮╯"):
-            continue
-        if re.match(r"-{1,2}[A-Za-z]", line) or re.match(r"\{[\w,-]+\}$", line):
-            entries.append([line])
-        elif entries:
-            entries[-1].append(line)
+    for line in sections:
+        if re.match(r"  \S", line):  # an argument's first line; its description goes on, indented further
+            entries.append([line.strip()])
+        elif line.startswith("   ") and entries:
+            entries[-1].append(line.strip())
     missing = []
     for entry in entries:
         head = re.split(r"\s{2,}", entry[0], maxsplit=1)
         text = " ".join(([head[1]] if len(head) > 1 else []) + entry[1:]).strip()
-        if not text or text.startswith(("(default", "(required", "(fixed")):
+        if head[0] != "-h, --help" and (not text or text.startswith("(default")):
             missing.append(head[0])
     return missing
 
 
-@pytest.mark.parametrize("name", sorted(TYRO_COMMANDS))
-def test_help_pages_are_plain_text_with_every_option_described(name):
-    main, argv = TYRO_COMMANDS[name]
-    printed = io.StringIO()
-    with redirect_stdout(printed), pytest.raises(SystemExit) as exit_info:
-        main([*argv, "--help"])
-    assert exit_info.value.code == 0
-    text = printed.getvalue()
-    opening, _ = _split_help(text)
+def test_the_help_check_finds_an_undescribed_option():
+    page = "usage: x\n\noptions:\n  -h, --help  show this\n  --seeds INT  (default: 5)\n  --out PATH  Where.\n"
+    assert _undescribed(page) == ["--seeds INT"]
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_help_pages_are_plain_text_with_every_option_described(name, capsys):
+    assert COMMANDS[name](["--help"]) == 0
+    text = capsys.readouterr().out
+    opening, sections = _split_help(text)
     assert "``" not in text and "Table 2)." not in opening
-    assert len(_split_help(text)[1]) > 5 and _undescribed(text) == [], name
+    assert len(sections) > 5 and _undescribed(text) == [], name
 
 
-def test_the_pipeline_help_says_whose_defaults_it_shows():
-    printed = io.StringIO()
-    with redirect_stdout(printed), pytest.raises(SystemExit):
-        kitchen.main(["--help"])
-    text = printed.getvalue()
+def test_nested_options_keep_the_spelling_the_docs_use():
+    config = parse(
+        ExperimentConfig,
+        ["--talar.no-translator-tokens", "--talar.finetuned-bert-first-layer", "5", "--ifp.total-env-steps", "4096"],
+        default=default_config("kitchen"),
+    )
+    assert config.talar.translator_tokens is False and config.talar.finetuned_bert_first_layer == 5
+    assert config.ifp.total_env_steps == 4096 and config.talar.rg_steps == default_config("kitchen").talar.rg_steps
+    env_options = parse(
+        ExperimentConfig, ["--env-options", "posture_targets", "talar"], default=default_config("kitchen")
+    )
+    assert env_options.env_options == {"posture_targets": "talar"}
+    assert parse(ExperimentConfig, [], default=default_config("clevr")) == default_config("clevr")
+
+
+def test_the_pipeline_help_says_whose_defaults_it_shows(capsys):
+    assert kitchen.main(["--help"]) == 0
+    text = capsys.readouterr().out
     assert "The defaults shown are the kitchen recipe's" in text
     assert "defaults: the paper's Table 2" not in text and "N_pn = 4 predicates" not in text
 
 
-ARGPARSE_PROBE = textwrap.dedent(
+HELP_PROBE = textwrap.dedent(
     """
-    import argparse, importlib, sys
-    import experiments.cli as cli
+    import contextlib, importlib, io, json, sys
+    from experiments.cli import exit_status
     from talar_jax import runtime
-    runtime.configure = runtime.start = lambda *a, **k: None
-    missing = []
-    def parse_args(self, *args, **kwargs):
-        parsers = [self]
-        while parsers:
-            parser = parsers.pop()
-            for action in parser._actions:
-                if isinstance(action, argparse._SubParsersAction):
-                    parsers.extend(action.choices.values())
-                elif action.help is None:
-                    missing.append(f"{parser.prog} {'/'.join(action.option_strings) or action.dest}")
-        raise SystemExit(0)
-    cli.ArgumentParser.parse_args = parse_args
-    for name in sys.argv[1:]:
-        try:
-            importlib.import_module(name).main()
-        except SystemExit:
-            pass
-    print("\\n".join(missing))
+    runtime.configure = runtime.start = lambda *a, **k: None  # a help page needs no JAX set-up
+    pages = {}
+    for line in sys.argv[1:]:
+        module, *words = line.split()
+        sys.argv = [module, *words, "--help"]
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            status = exit_status(importlib.import_module(module).main)
+        pages[line] = [status, printed.getvalue()]
+    print(json.dumps(pages))
     """
 )
 
 ARGPARSE_COMMANDS = (
     "experiments.records",
+    "experiments.records record",
+    "experiments.records restore",
+    "experiments.records annotate",
     "experiments.analysis.code_grouping",
     "experiments.analysis.early_curves",
     "experiments.analysis.encoder_neighbours",
@@ -447,12 +449,14 @@ ARGPARSE_COMMANDS = (
 )
 
 
-def test_every_argparse_option_of_the_analyses_and_benchmarks_is_described():
+def test_every_option_of_the_records_analyses_and_benchmarks_is_described():
     probe = subprocess.run(
-        [sys.executable, "-c", ARGPARSE_PROBE, *ARGPARSE_COMMANDS], cwd=ROOT, capture_output=True, text=True
+        [sys.executable, "-c", HELP_PROBE, *ARGPARSE_COMMANDS], cwd=ROOT, capture_output=True, text=True
     )
     assert probe.returncode == 0, probe.stderr
-    assert probe.stdout.strip() == "", probe.stdout
+    pages = json.loads(probe.stdout.strip().splitlines()[-1])
+    for line, (status, page) in pages.items():
+        assert status == 0 and "usage:" in page and _undescribed(page) == [], (line, page)
 
 
 def test_plain_drops_markup_and_joins_wrapped_lines():
@@ -463,3 +467,73 @@ def test_plain_drops_markup_and_joins_wrapped_lines():
 def test_counts_are_singular_for_one():
     assert counted(1, "seed") == "1 seed" and counted(5, "seed") == "5 seeds"
     assert counted(12_000, "tuple") == "12,000 tuples"
+
+
+# --- an .mp4 without ffmpeg ------------------------------------------------------------------------------------------
+
+
+def test_an_mp4_without_ffmpeg_stops_instruct_before_any_work(tmp_path, capsys, monkeypatch):
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    monkeypatch.setenv("PATH", str(empty))  # no ffmpeg program to find
+    run = tmp_path / "no-run-here"  # not loaded: the check comes first
+    err = _error(capsys, instruct.main, [str(run), "go", "--video", str(tmp_path / "episode.mp4")])
+    assert err.startswith("error: --video ") and "needs the ffmpeg program" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bin"]
+
+
+# --- Ctrl-C ----------------------------------------------------------------------------------------------------------
+
+
+def _interrupt_after(process: subprocess.Popen, sign: bytes, source) -> tuple[int, str]:
+    """Reads ``source`` until ``sign`` appears (the command is at work or waiting), sends SIGINT as Ctrl-C does;
+    (exit status, stderr)."""
+    seen = b""
+    while sign not in seen:
+        chunk = os.read(source, 4096)
+        assert chunk, f"the command ended before {sign!r}: {seen[-2000:]!r}"
+        seen += chunk
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=600)
+    return process.returncode, err.decode()
+
+
+def test_ctrl_c_stops_a_pipeline_command_with_one_line_and_status_130(tmp_path):
+    out = tmp_path / "run"
+    argv = ["--quick", "--encoder", TINY_BERT, "--no-progress", "--seeds", "1", "--out", str(out)]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "experiments.clevr", *argv], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    status, err = _interrupt_after(process, b"oracle", process.stdout.fileno())  # the first stage has begun
+    assert status == 130 and "Traceback" not in err, err
+    assert err.strip().splitlines() == ["stopped (Ctrl-C); run the same command again to resume"], err
+
+
+def test_interactive_instruct_prompts_and_stops_on_ctrl_c_with_one_line(tmp_path):
+    controller, terminal = pty.openpty()  # stdin is a terminal: the session prompts
+    process = subprocess.Popen(
+        [sys.executable, "-m", "experiments.instruct", "kitchen"],
+        cwd=ROOT,
+        stdin=terminal,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    os.close(terminal)
+    try:
+        status, err = _interrupt_after(process, b"> ", process.stdout.fileno())
+    finally:
+        os.close(controller)
+    assert status == 130 and "Traceback" not in err, err
+    assert err.strip().splitlines() == ["stopped (Ctrl-C)"], err
+
+
+def test_interactive_instruct_prompts_at_a_terminal_and_ends_at_end_of_input(monkeypatch, capsys):
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stdin", Terminal("Open the microwave\n  \n"))
+    assert list(instruct.read_sentences()) == ["Open the microwave", ""]
+    assert capsys.readouterr().out == "> > > \n"  # a prompt per line, and the end of input ends the prompt's line
+    monkeypatch.setattr(sys, "stdin", io.StringIO("Open the microwave\n"))  # piped: no prompt
+    assert list(instruct.read_sentences()) == ["Open the microwave"] and capsys.readouterr().out == ""

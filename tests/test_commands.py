@@ -1,5 +1,6 @@
-"""The ``talar-*`` console commands resolve to callables, and starting a command is what sets the process up:
-importing the experiment modules changes nothing (no XLA flag, no JAX backend, no git call)."""
+"""The ``talar-*`` console commands are the modules' ``main`` functions, which return the exit status (a summary goes
+to Python callers through ``run_command``); starting a command is what sets the process up: importing the experiment
+modules changes nothing (no XLA flag, no JAX backend, no git call)."""
 
 import os
 import subprocess
@@ -8,7 +9,9 @@ import tomllib
 from importlib import import_module
 from pathlib import Path
 
-from experiments import commands
+import pytest
+
+from experiments.cli import CommandError, UsageError, command
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -17,19 +20,33 @@ def console_scripts() -> dict[str, str]:
     return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
 
 
-def test_every_console_script_resolves_to_a_callable_that_runs_a_main():
-    scripts = console_scripts()
-    assert set(scripts) == set(commands.COMMANDS)
-    for name, target in scripts.items():
+def test_every_console_script_is_the_main_of_its_python_m_module():
+    for name, target in console_scripts().items():
         module, _, attr = target.partition(":")
-        assert callable(getattr(import_module(module), attr)), target
-        assert callable(import_module(commands.COMMANDS[name]).main), name
+        assert module == f"experiments.{name.removeprefix('talar-')}" and attr == "main", target
+        assert callable(import_module(module).main) and callable(import_module(module).run_command), target
 
 
-def test_a_command_exits_0_unless_its_main_returns_a_status(monkeypatch):
-    mains = {"summary": lambda argv=None: {"final": 1.0}, "status": lambda argv=None: 3, "none": lambda argv=None: None}
-    monkeypatch.setattr(commands.importlib, "import_module", lambda name: type("M", (), {"main": mains[name]}))
-    assert commands.run("summary") == 0 and commands.run("status") == 3 and commands.run("none") == 0
+@pytest.mark.parametrize(
+    ("outcome", "status", "stderr"),
+    [
+        ({"final": 1.0}, 0, ""),
+        (None, 0, ""),
+        (3, 3, ""),
+        (UsageError("--seeds must be >= 1, got 0"), 2, "error: --seeds must be >= 1, got 0\n"),
+        (CommandError("table3 stopped with status 1", 1), 1, "error: table3 stopped with status 1\n"),
+        (KeyboardInterrupt(), 130, "stopped (Ctrl-C); run the same command again to resume\n"),
+    ],
+)
+def test_main_returns_the_exit_status_and_prints_at_most_one_line(outcome, status, stderr, capsys):
+    def run_command(argv):
+        if isinstance(outcome, BaseException):
+            raise outcome
+        return outcome
+
+    assert command(run_command, resumes=True)(["--x"]) == status
+    printed = capsys.readouterr()
+    assert printed.err == stderr and printed.out == ""
 
 
 def test_importing_the_commands_sets_nothing_up():
@@ -37,9 +54,10 @@ def test_importing_the_commands_sets_nothing_up():
     probe = (
         "import os, sys\n"
         "import jax._src.xla_bridge as xla_bridge\n"
-        "from experiments import commands\n"
-        "for module in commands.COMMANDS.values():\n"
-        "    __import__(module)\n"
+        "import tomllib\n"
+        "scripts = tomllib.loads(open('pyproject.toml').read())['project']['scripts']\n"
+        "for target in scripts.values():\n"
+        "    __import__(target.partition(':')[0])\n"
         "from talar_jax import provenance\n"
         "assert 'XLA_FLAGS' not in os.environ and 'MUJOCO_GL' not in os.environ, os.environ\n"
         "assert not xla_bridge._backends, 'a JAX backend started on import'\n"

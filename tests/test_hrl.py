@@ -97,7 +97,7 @@ def test_hrl_command_quick_end_to_end(env_name, methods, request, tmp_path, caps
     run_dir = request.getfixturevalue(f"{env_name}_run")[0]
     args = ["--env", env_name, "--quick", "--seeds", "2", "--out", str(tmp_path / "hrl"), "--run-dir", str(run_dir)]
     args += ["--methods", *methods, "--episode-length", "2", "--env-steps", "5120", "--no-progress"]
-    summary = hrl.main(args)
+    summary = hrl.run_command(args)
     assert set(summary["methods"]) == set(methods) and summary["hold"] == 10
     for method in methods:
         returns = np.asarray(summary["methods"][method]["returns_per_seed"])
@@ -108,6 +108,5 @@ def test_hrl_command_quick_end_to_end(env_name, methods, request, tmp_path, caps
     assert (tmp_path / "hrl" / "hrl.png").stat().st_size > 0
     assert "area under the curve" in (tmp_path / "hrl" / "results.md").read_text()
     capsys.readouterr()
-    with pytest.raises(SystemExit):
-        hrl.main(["--env", "nope"])
+    assert hrl.main(["--env", "nope"]) == 2
     assert "error: unknown env" in capsys.readouterr().err

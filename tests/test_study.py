@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from experiments import study
+from experiments.cli import UsageError
 from experiments.config import default_config
 from tests.conftest import QUICK, TINY_BERT
 
@@ -91,9 +92,7 @@ def test_study_outputs_state_their_budget(tmp_path):
     ],
 )
 def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
-    with pytest.raises(SystemExit) as exit_info:
-        study.main([*argv, "--out", str(tmp_path / "never")])
-    assert exit_info.value.code == 2
+    assert study.main([*argv, "--out", str(tmp_path / "never")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and message in err and "\n" not in err
     assert not (tmp_path / "never").exists()
@@ -102,19 +101,19 @@ def test_bad_study_options_fail_with_one_line(argv, message, capsys, tmp_path):
 def test_report_only_runs_nothing_and_says_when_nothing_finished(tmp_path):
     base = default_config("kitchen", seeds=2, out=tmp_path, encoder=TINY_BERT)
     args = study.StudyArgs("end-to-end", base, report_only=True)
-    with pytest.raises(SystemExit) as exit_info:
+    with pytest.raises(UsageError) as error:
         study.study(args)
-    message = str(exit_info.value.code)
-    assert message.startswith("error: no setting of the end-to-end study has finished") and "\n" not in message
+    message = str(error.value)
+    assert message.startswith("no setting of the end-to-end study has finished") and "\n" not in message
     assert not any((tmp_path / label).exists() for label in ("talar", "end-to-end"))
 
 
 @pytest.mark.slow
 def test_ablation_quick_end_to_end_shares_the_oracle(tmp_path):
     argv = ["ablation", "--env", "clevr", *QUICK, "--predicates", "2", "--arguments", "1", "2", "--out", str(tmp_path)]
-    assert list(study.main([*argv, "--only", "npn2-na1"])) == ["npn2-na1"]
+    assert list(study.run_command([*argv, "--only", "npn2-na1"])) == ["npn2-na1"]
     assert "Not run yet (**partial study**): npn2-na2." in (tmp_path / "study.md").read_text()
-    finals = study.main([*argv, "--only", "npn2-na2"])  # the first setting's finished run joins the outputs
+    finals = study.run_command([*argv, "--only", "npn2-na2"])  # the first setting's finished run joins the outputs
     assert list(finals) == ["npn2-na1", "npn2-na2"]
     assert "Not run yet" not in (tmp_path / "study.md").read_text()
     assert (tmp_path / "npn2-na2" / "oracle").is_symlink()

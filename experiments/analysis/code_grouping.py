@@ -12,28 +12,24 @@ too, where counting distinct codes is not.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import ArgumentParser
+from experiments.cli import ArgumentParser, command
 from experiments.reports import load_agent, trained_codes
 from experiments.tsne import goal_grouping as grouping
 from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
 
 
-def main(argv: list[str] | None = None) -> None:
+def run_command(argv: list[str] | None = None) -> None:
     runtime.start()
     parser = ArgumentParser(prog="python -m experiments.analysis.code_grouping", description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", help="a finished run folder (a run root such as runs/clevr, or its method folder)")
     args = parser.parse_args(argv)
-    try:
-        folder = find_method_folder(args.run_dir, prefer="talar")
-        agent = load_agent(args.run_dir, seed=0)
-    except AgentError as error:
-        sys.exit(f"error: {error}")
+    folder = find_method_folder(args.run_dir, prefer="talar")
+    agent = load_agent(args.run_dir, seed=0)
     goals, is_train = agent.cache.goal_ids, agent.cache.is_train
     for seed in range(int(agent.config["seeds"])):
         row = grouping(np.asarray(trained_codes(Path(folder), seed), dtype=np.float64), goals, is_train)
@@ -45,5 +41,7 @@ def main(argv: list[str] | None = None) -> None:
         )
 
 
+main = command(run_command, bad_input=(AgentError,))
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

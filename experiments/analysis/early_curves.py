@@ -15,12 +15,11 @@ and test instructions (mean +- std over seeds, as the run reports draw them).
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import check_outputs_or_exit, module_parser
+from experiments.cli import ArgumentParser, UsageError, check_outputs, command
 from talar_jax.report import LearningCurve, plot_learning_curves
 
 
@@ -72,8 +71,8 @@ def table(curves: dict[str, dict], split: str) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = module_parser("experiments.analysis.early_curves", __doc__)
+def run_command(argv: list[str] | None = None) -> None:
+    parser = ArgumentParser(prog="python -m experiments.analysis.early_curves", description=__doc__)
     parser.add_argument("methods", nargs="+", help="LABEL=FOLDER (a record or a run's method folder)")
     parser.add_argument("--until", type=int, required=True, help="last env step per seed to compare")
     parser.add_argument(
@@ -81,26 +80,24 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--plot", type=Path, help="also write the curves up to --until to this PNG")
     args = parser.parse_args(argv)
-    check_outputs_or_exit((args.plot, "--plot", "file"))
+    check_outputs((args.plot, "--plot", "file"))
     pairs = [m.split("=", 1) for m in args.methods]
     if any(len(p) != 2 or not p[0] for p in pairs):
-        sys.exit("error: methods are given as LABEL=FOLDER")
-    try:
-        splits = ("train", "test") if args.plot else (args.split,)  # the plot draws both
-        by_split = {s: {label: early_curve(metrics_path(Path(f)), args.until, s) for label, f in pairs} for s in splits}
-        print(table(by_split[args.split], args.split))
-        if args.plot:
-            both = {
-                label: LearningCurve(
-                    by_split["train"][label]["env_steps"], {s: by_split[s][label]["success"] for s in splits}
-                )
-                for label, _ in pairs
-            }
-            print(f"wrote {plot_learning_curves(both, args.plot, title=f'first {args.until:,} env steps')}")
-    except (FileNotFoundError, ValueError) as err:
-        sys.exit(f"error: {err}")
-    return 0
+        raise UsageError("methods are given as LABEL=FOLDER")
+    splits = ("train", "test") if args.plot else (args.split,)  # the plot draws both
+    by_split = {s: {label: early_curve(metrics_path(Path(f)), args.until, s) for label, f in pairs} for s in splits}
+    print(table(by_split[args.split], args.split))
+    if args.plot:
+        both = {
+            label: LearningCurve(
+                by_split["train"][label]["env_steps"], {s: by_split[s][label]["success"] for s in splits}
+            )
+            for label, _ in pairs
+        }
+        print(f"wrote {plot_learning_curves(both, args.plot, title=f'first {args.until:,} env steps')}")
 
+
+main = command(run_command, bad_input=(FileNotFoundError, ValueError))
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

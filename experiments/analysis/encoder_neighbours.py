@@ -16,12 +16,11 @@ results/unseen-phrasings.md gives the commands used for all-MiniLM-L6-v2 and all
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import module_parser
+from experiments.cli import ArgumentParser, UsageError, command
 
 DATA = Path(__file__).resolve().parents[2] / "talar_jax" / "language" / "data"
 
@@ -44,19 +43,17 @@ def classify(train: np.ndarray, train_goals: np.ndarray, held_out: np.ndarray) -
     return nearest, (held_out @ centroids.T).argmax(1)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = module_parser("experiments.analysis.encoder_neighbours", __doc__)
+def run_command(argv: list[str] | None = None) -> None:
+    parser = ArgumentParser(prog="python -m experiments.analysis.encoder_neighbours", description=__doc__)
     parser.add_argument("encoders", nargs="+", metavar="ENCODER_FOLDER", help="a sentence-transformers model folder")
     folders = parser.parse_args(argv).encoders
     try:
         from sentence_transformers import SentenceTransformer
     except ImportError:
-        print("error: this probe needs sentence-transformers (pip install sentence-transformers)", file=sys.stderr)
-        return 2
+        raise UsageError("this probe needs sentence-transformers (pip install sentence-transformers)") from None
     missing = [folder for folder in folders if not Path(folder).is_dir()]
     if missing:
-        print(f"error: no such encoder folder: {missing[0]}", file=sys.stderr)
-        return 2
+        raise UsageError(f"no such encoder folder: {missing[0]}")
     names, train, held_out = kitchen_sentences()
     train_goals = np.array([names.index(name) for _, name in train])
     goals = np.array([names.index(name) for _, name in held_out])
@@ -69,8 +66,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{folder} {label}: {int((guess == goals).sum())}/{len(goals)} development phrasings")
             for index in np.flatnonzero(guess != goals):
                 print(f"  miss: {held_out[index][0]!r} ({held_out[index][1]}) -> {names[guess[index]]}")
-    return 0
 
+
+main = command(run_command)
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -14,14 +14,13 @@ translator or an encoding layer (TALAR, Handcrafted, GLA, BERT-*; see ``talar_ja
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from envs.kitchen.tasks import BONUS_THRESH, task_distances
-from experiments.cli import check_outputs_or_exit, module_parser
+from experiments.cli import ArgumentParser, check_outputs, command
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import AgentError, find_method_folder
@@ -65,9 +64,9 @@ def seed_report(run_dir: str, seed: int, episodes: int) -> dict:
     return {"seed": seed, "code_groups": list(groups.values()), "per_task": per_task}
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_command(argv: list[str] | None = None) -> None:
     runtime.start()
-    parser = module_parser("experiments.analysis.side_tasks", __doc__)
+    parser = ArgumentParser(prog="python -m experiments.analysis.side_tasks", description=__doc__)
     parser.add_argument("run_dir", help="a finished kitchen run folder (or its method folder)")
     parser.add_argument("--seeds", type=int, nargs="+", help="seeds to probe (default: all of the run's)")
     parser.add_argument("--episodes", type=int, default=10, help="episodes per sub-task and seed")
@@ -75,14 +74,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error("--episodes must be >= 1")
-    check_outputs_or_exit((args.json, "--json", "file"))
-    try:
-        config = json.loads((find_method_folder(args.run_dir, prefer="talar") / "config.json").read_text())
-        seeds = args.seeds if args.seeds is not None else range(int(config["seeds"]))
-        reports = [seed_report(args.run_dir, seed, args.episodes) for seed in seeds]
-    except (AgentError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    check_outputs((args.json, "--json", "file"))
+    config = json.loads((find_method_folder(args.run_dir, prefer="talar") / "config.json").read_text())
+    seeds = args.seeds if args.seeds is not None else range(int(config["seeds"]))
+    reports = [seed_report(args.run_dir, seed, args.episodes) for seed in seeds]
     for report in reports:
         print(f"seed {report['seed']}: sub-tasks sharing a code: {report['code_groups']}")
         for name, row in report["per_task"].items():
@@ -92,8 +87,9 @@ def main(argv: list[str] | None = None) -> int:
             )
     if args.json:
         args.json.write_text(json.dumps({"run": args.run_dir, "episodes": args.episodes, "seeds": reports}, indent=1))
-    return 0
 
+
+main = command(run_command, bad_input=(AgentError, ValueError))
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from experiments.cli import ArgumentParser, check_outputs_or_exit, module_parser
+from experiments.cli import ArgumentParser, check_outputs, command
 from experiments.config import default_config, resolve
 from experiments.generalize import evaluate_seed
 from experiments.methods import MethodContext, paraphrased_data, stage_seed_keys, translator_readout
@@ -75,7 +75,7 @@ def agreement(codes: np.ndarray, goals: np.ndarray, goal_codes: dict[int, np.nda
 
 
 def _parser() -> ArgumentParser:
-    parser = module_parser("experiments.analysis.translator_robustness", __doc__)
+    parser = ArgumentParser(prog="python -m experiments.analysis.translator_robustness", description=__doc__)
     parser.add_argument("run", type=Path, help="a finished experiment folder (RUN above), e.g. runs/kitchen")
     parser.add_argument("--env", required=True, choices=["clevr", "kitchen"], help="the env of RUN")
     parser.add_argument("--seeds", type=int, default=5, help="translator seeds, the first of RUN's (default: 5)")
@@ -257,10 +257,10 @@ def _variant(args, config, count: int, inputs) -> tuple[str, dict]:
     return f"{count}{edits}", result
 
 
-def main(argv: list[str] | None = None) -> None:
+def run_command(argv: list[str] | None = None) -> None:
     runtime.start()
     args = _parser().parse_args(argv)
-    check_outputs_or_exit((args.json, "--json", "file"), (args.run / "translator-robustness", "RUN", "folder"))
+    check_outputs((args.json, "--json", "file"), (args.run / "translator-robustness", "RUN", "folder"))
     config = _config(args)
     inputs = _inputs(args, config)
     results = dict(_variant(args, config, count, inputs) for count in args.paraphrases)
@@ -276,5 +276,7 @@ def main(argv: list[str] | None = None) -> None:
         args.json.write_text(json.dumps(payload, indent=2))
 
 
+main = command(run_command)
+
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
