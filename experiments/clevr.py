@@ -1,21 +1,17 @@
-"""TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
+"""TALAR on CLEVR-Robot: ``python -m experiments.clevr --seeds 5`` (``--quick`` for a smoke run, ``--help``).
 
-from __future__ import annotations
+``run_command(argv)`` is the command for Python callers: it returns the run's summary (bad input raises
+``experiments.cli.UsageError``).
+"""
 
-from typing import Any
+from functools import partial
 
 from experiments.cli import command
 from experiments.config import default_config
 from experiments.pipeline import run_command as run_pipeline
 
 DEFAULT = default_config("clevr")
-
-
-def run_command(argv: list[str] | None = None) -> dict[str, Any]:
-    """The command for Python callers: the run's summary (bad input raises ``experiments.cli.UsageError``)."""
-    return run_pipeline("clevr", argv)
-
-
+run_command = partial(run_pipeline, "clevr")
 main = command(run_command, resumes=True)
 
 if __name__ == "__main__":

@@ -102,8 +102,7 @@ def command(
     def main(argv: list[str] | None = None) -> int:
         return exit_status(function, argv, resumes=resumes, bad_input=bad_input)
 
-    main.__doc__ = f"The command line of ``{function.__module__}`` (returns the exit status); ``{function.__name__}``"
-    main.__doc__ += " is the same for Python callers."
+    main.__doc__ = "The command line (returns the exit status); ``run_command`` is the same for Python callers."
     return main
 
 
