@@ -84,3 +84,15 @@ def test_bad_options_fail_with_one_line(argv, message, capsys):
     assert paper.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and message in err and "\n" not in err
+
+
+def test_a_job_stopped_by_ctrl_c_stops_the_reproduction_without_a_second_line(tmp_path, monkeypatch, capsys):
+    calls = []
+
+    def interrupted(command):  # the job got the same Ctrl-C, printed its one line and ended with 130
+        calls.append(command)
+        return 130
+
+    monkeypatch.setattr(paper, "run_job", interrupted)
+    assert paper.main(["--root", str(tmp_path), "--only", "clevr", "kitchen"]) == 130
+    assert len(calls) == 1 and capsys.readouterr().err == ""  # kitchen not started; the job's line is the only one
