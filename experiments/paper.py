@@ -3,7 +3,7 @@
 Runs the commands below in order, each into its own folder under ``--root`` (default ``runs/paper``); every stage
 is cached and resumable and each command copies the stages an earlier one finished (``--reuse-stages``), so an
 interrupted call continues where it stopped when run again. ``--dry-run`` prints the commands; ``--only NAME ...``
-runs some of them. The physics backend defaults to MuJoCo C on a CPU and MJX on an accelerator (``--physics``).
+runs some of them. The physics defaults to MuJoCo C on a CPU and MJX on an accelerator (``--physics``).
 
 On the 2-core CPU of results/README.md this is several days of compute (a 4M-step kitchen policy of 5 seeds takes
 50-75 minutes, and the kitchen studies need 13 of them); Fig. 14 (``finetuned-bert``: BERT trained inside the policy
@@ -21,6 +21,11 @@ from pathlib import Path
 from experiments.cli import EXIT_INTERRUPTED, CommandError, check_outputs, checked, command, parse
 from experiments.lock import hold
 from talar_jax import runtime
+from talar_jax.language.encoder import ENCODER_VARIANTS
+
+ENCODER_EXPERIMENT_METHODS: tuple[str, ...] = ("talar", "bert-binary", "bert-continuous")
+"""What each encoder of the encoder experiment trains: TALAR and the two BERT baselines. One-hot reads no encoder, so
+its row comes from ``compare-clevr``, as does the default encoder's point."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,6 +86,26 @@ def jobs(args: PaperArgs) -> list[Job]:
             "Table 3: 1 / 5 / 9 training patterns",
             ("experiments.patterns", *common, "--out", str(compare_clevr)),
             (clevr,),
+        ),
+        *(
+            Job(
+                f"encoder-{name}",
+                f"TALAR's lead against the encoder, CLEVR: {name}",
+                (
+                    "experiments.compare",
+                    "--env",
+                    "clevr",
+                    *common,
+                    "--encoder",
+                    name,
+                    "--methods",
+                    *ENCODER_EXPERIMENT_METHODS,
+                    "--out",
+                    str(root / "encoders-clevr" / name),
+                ),  # fmt: skip
+                (clevr,),
+            )
+            for name in ENCODER_VARIANTS
         ),
         Job(
             "compare-kitchen",

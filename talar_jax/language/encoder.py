@@ -7,6 +7,7 @@ import hashlib
 import importlib.util
 import json
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,6 +32,21 @@ WEIGHTS_FILE = "model.safetensors"
 
 class EncoderError(ValueError):
     """A missing or unusable encoder (package, folder, config, weights or tokenizer)."""
+
+
+READOUTS: tuple[str, ...] = ("mean", "cls", "word-pieces")
+"""A sentence's embedding and token states, besides ``layer-K`` (the mean of layer K's states, K from 1)."""
+_LAYER_READOUT = re.compile(r"layer-([1-9]\d*)")
+
+ENCODER_VARIANTS: dict[str, dict] = {
+    "minilm-cls": {"readout": "cls"},
+    "minilm-layer3": {"readout": "layer-3"},
+    "minilm-word-pieces": {"readout": "word-pieces"},
+    "random-bert": {"random_weights_seed": 0},
+}
+"""The default encoder's network read out in ways it was not trained for, or with random weights: encoders that group
+phrasings by goal less and less, for testing whether TALAR's lead over the NL baselines depends on that grouping.
+``--encoder NAME`` selects one; each has its own language cache and stage keys."""
 
 
 def default_encoder_path() -> Path:
@@ -86,13 +102,24 @@ class BertEncoder:
     L2-normalised: exactly sentence-transformers' all-MiniLM-L6-v2 pipeline (Pooling mean + Normalize).
     """
 
-    def __init__(self, folder: str | os.PathLike, name: str | None = None, expected_sha256: str | None = None):
+    def __init__(
+        self,
+        folder: str | os.PathLike,
+        name: str | None = None,
+        expected_sha256: str | None = None,
+        readout: str = "mean",
+        random_weights_seed: int | None = None,
+    ):
         """Loads and checks the folder.
 
         Args:
             folder: a Hugging Face BERT folder (config.json, model.safetensors, tokenizer.json or vocab.txt).
             name: a short display name (default: the folder name).
             expected_sha256: when given, the weights file must have this sha256.
+            readout: what a sentence's token states and embedding are (``READOUTS``); "mean" is what
+                sentence-transformers models are trained for.
+            random_weights_seed: when given, the folder's weights are replaced by flax's initialisation of the same
+                network from this seed (the floor of the encoder experiment: a BERT that learned nothing).
 
         Raises:
             EncoderError: missing folder or files, not a BERT, wrong hash.
@@ -122,6 +149,18 @@ class BertEncoder:
             self.params = jax.device_put(convert_weights(safetensors.numpy.load_file(str(weights_file)), self.config))
         except ValueError as error:
             raise EncoderError(f"{weights_file} is not a BERT checkpoint for its config.json: {error}") from None
+        if random_weights_seed is not None:
+            dummy = jnp.zeros((1, 2), jnp.int32)
+            self.params = BertModel(self.config).init(jax.random.key(random_weights_seed), dummy, dummy)
+            # the weights' identity is the seed and the shape: what the cache key and a run's record compare
+            self.weights_sha256 = hashlib.sha256(f"random|{random_weights_seed}|{self.config}".encode()).hexdigest()
+        layer = _LAYER_READOUT.fullmatch(readout)
+        if readout not in READOUTS and not (layer and int(layer.group(1)) <= self.config.num_hidden_layers):
+            raise EncoderError(
+                f"unknown encoder readout {readout!r}; valid: {', '.join(READOUTS)} or layer-K, K from 1 to "
+                f"{self.config.num_hidden_layers}"
+            )
+        self.readout = readout
         self.tokenizer, self.tokenizer_sha256 = _load_tokenizer(folder)
         self.folder = folder
         self.name = name or folder.name
@@ -134,8 +173,24 @@ class BertEncoder:
         if self.tokenizer.get_vocab_size() > self.config.vocab_size:
             raise EncoderError(f"{folder}: tokenizer vocabulary is larger than config vocab_size")
         self.module = BertModel(self.config)
-        self._hidden = jax.jit(self.module.apply)
-        self._pooled = jax.jit(lambda params, ids, mask: mean_pool(self.module.apply(params, ids, mask), mask))
+        self._hidden = jax.jit(self._token_states_of)
+        self._pooled = jax.jit(self._pool)
+
+    def _token_states_of(self, params, ids: jax.Array, mask: jax.Array) -> jax.Array:
+        """(B, T, H) the states this readout gives each token: the last layer's ("mean", "cls"), layer K's
+        ("layer-K"), or the word-piece embedding table's row, without position or context ("word-pieces")."""
+        if self.readout == "word-pieces":
+            return params["params"]["embeddings"]["word_embeddings"]["embedding"][ids]
+        layer = _LAYER_READOUT.fullmatch(self.readout)
+        stop = int(layer.group(1)) if layer else self.config.num_hidden_layers
+        return BertModel(self.config, layers=(0, stop)).apply(params, ids, mask)
+
+    def _pool(self, params, ids: jax.Array, mask: jax.Array) -> jax.Array:
+        """(B, H) L2-normalised sentence embeddings: the [CLS] state for "cls", else the mean over non-pad tokens."""
+        states = self._token_states_of(params, ids, mask)
+        if self.readout == "cls":
+            return mean_pool(states[:, :1], mask[:, :1])  # the mean of one row: its L2-normalised [CLS] state
+        return mean_pool(states, mask)
 
     def whole_words(self, min_length: int = 3) -> list[str]:
         """The tokenizer's vocabulary entries that are whole alphabetic words of ``min_length`` letters or more
@@ -151,7 +206,7 @@ class BertEncoder:
     @property
     def cache_key(self) -> str:
         """Digest of everything that determines the embeddings: weights, tokenizer, pooling."""
-        return hashlib.sha256(f"{self.weights_sha256}|{self.tokenizer_sha256}|mean-l2".encode()).hexdigest()
+        return hashlib.sha256(f"{self.weights_sha256}|{self.tokenizer_sha256}|{self.readout}-l2".encode()).hexdigest()
 
     def tokenize(self, sentences: Sequence[str]) -> list[list[int]]:
         """Word-piece ids of each sentence without [CLS]/[SEP]."""
@@ -245,7 +300,8 @@ class BertEncoder:
 
 
 def load_encoder(encoder: str | os.PathLike | BertEncoder | None = None) -> BertEncoder:
-    """The encoder to use: None = the default all-MiniLM-L6-v2 (weights sha256 checked), or a BERT folder path.
+    """The encoder to use: None = the default all-MiniLM-L6-v2 (weights sha256 checked), a name of
+    ``ENCODER_VARIANTS`` (the default's network read out otherwise, or with random weights), or a BERT folder path.
 
     Raises:
         EncoderError: with how to install the default package when it is missing.
@@ -254,9 +310,18 @@ def load_encoder(encoder: str | os.PathLike | BertEncoder | None = None) -> Bert
         return encoder
     if encoder is None:
         return _load_default()
+    if str(encoder) in ENCODER_VARIANTS:
+        return _load_variant(str(encoder))
     return BertEncoder(encoder)
 
 
 @functools.lru_cache(maxsize=1)
 def _load_default() -> BertEncoder:
     return BertEncoder(default_encoder_path(), name=DEFAULT_ENCODER_NAME, expected_sha256=DEFAULT_WEIGHTS_SHA256)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_variant(name: str) -> BertEncoder:
+    return BertEncoder(
+        default_encoder_path(), name=name, expected_sha256=DEFAULT_WEIGHTS_SHA256, **ENCODER_VARIANTS[name]
+    )

@@ -1,0 +1,65 @@
+"""The encoder experiment's family: one BERT network read out in several ways, or with random weights. Each readout
+is what it says, the default readout is unchanged, and each has its own cache key."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from talar_jax.language import BertEncoder
+from talar_jax.language.bert import BertModel, mean_pool
+from talar_jax.language.encoder import ENCODER_VARIANTS, EncoderError
+from tests.conftest import TINY_BERT
+
+SENTENCES = ["push the red ball to the left", "open the microwave door please"]
+
+
+def encoder(**kwargs) -> BertEncoder:
+    return BertEncoder(TINY_BERT, **kwargs)
+
+
+def inputs(model: BertEncoder):
+    ids, mask = model.pad([model.with_specials(t) for t in model.tokenize(SENTENCES)])
+    return ids, mask
+
+
+def test_the_mean_readout_is_the_plain_network_mean_pooled():
+    model = encoder()
+    ids, mask = inputs(model)
+    expected = mean_pool(BertModel(model.config).apply(model.params, ids, mask), mask)
+    np.testing.assert_allclose(model.encode(SENTENCES), np.asarray(expected), atol=1e-6)
+
+
+def test_each_readout_reads_what_it_names():
+    base = encoder()
+    ids, mask = inputs(base)
+    last = np.asarray(BertModel(base.config).apply(base.params, ids, mask))
+    cls = encoder(readout="cls").encode(SENTENCES)
+    np.testing.assert_allclose(cls, last[:, 0] / np.linalg.norm(last[:, 0], axis=1, keepdims=True), atol=1e-6)
+    layer = encoder(readout="layer-1")
+    first = np.asarray(BertModel(base.config, layers=(0, 1)).apply(base.params, ids, mask))
+    np.testing.assert_allclose(layer.hidden_states(ids, mask), first, atol=1e-6)
+    pieces = encoder(readout="word-pieces")
+    table = np.asarray(base.params["params"]["embeddings"]["word_embeddings"]["embedding"])
+    np.testing.assert_array_equal(pieces.hidden_states(ids, mask), table[ids])
+    keys = {encoder(readout=r).cache_key for r in ("mean", "cls", "layer-1", "word-pieces")}
+    assert len(keys) == 4
+
+
+def test_random_weights_are_seeded_and_not_the_folders():
+    first, again, other = (encoder(random_weights_seed=s) for s in (0, 0, 1))
+    np.testing.assert_array_equal(first.encode(SENTENCES), again.encode(SENTENCES))
+    assert first.weights_sha256 == again.weights_sha256 != other.weights_sha256
+    assert not np.allclose(first.encode(SENTENCES), encoder().encode(SENTENCES), atol=1e-3)
+    assert first.cache_key != encoder().cache_key
+
+
+@pytest.mark.parametrize("readout", ["max", "layer-0", "layer-x", "layer-99"])
+def test_an_unknown_readout_is_an_encoder_error(readout):
+    with pytest.raises(EncoderError, match="unknown encoder readout"):
+        encoder(readout=readout)
+
+
+def test_the_named_variants_are_the_default_network():
+    assert set(ENCODER_VARIANTS) == {"minilm-cls", "minilm-layer3", "minilm-word-pieces", "random-bert"}
+    assert all(set(options) <= {"readout", "random_weights_seed"} for options in ENCODER_VARIANTS.values())
