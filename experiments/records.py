@@ -1,9 +1,9 @@
 """Results records: copy a finished run's small outputs into ``results/``, put one back as a report-only run folder,
 and state every recorded summary's budget.
 
-    python -m experiments.records record runs/kitchen/talar results/kitchen-talar-5seeds-4M --command "python -m ..."
+    python -m experiments.records record runs/kitchen/talar results/kitchen-talar --command "python -m ..."
         [--note "machine, sharing, ..."]
-    python -m experiments.records restore results/kitchen-compare-5seeds-4M/gla runs/compare-kitchen-4M/gla
+    python -m experiments.records restore results/kitchen-compare/gla runs/compare-kitchen-4M/gla
     python -m experiments.records annotate [--check]
 
 ``record`` copies the method folder's config.json, results.md, summary.json, curves.png and tsne.png, every stage's
@@ -24,9 +24,8 @@ codes). Refuses to write into a folder that holds a run.
 runs write (env, method, seeds, IFP env steps per seed, number of patterns, commit), so a reader or a script can tell
 a number's budget without guessing from a folder name. Sources, in order: the summary's own fields; the folder's
 ``provenance.json``; its ``config.json`` (configured IFP budget, patterns); ``ifp_metrics.jsonl`` (env steps actually
-run); the commits results/history.md names for runs recorded before provenance was written (``KNOWN_COMMITS``);
-otherwise the commit is null, with a note. ``--check`` exits non-zero if any summary lacks the fields (the test suite
-runs it).
+run); otherwise the commit is null, with a note. ``--check`` exits non-zero if any summary lacks the fields (the
+test suite runs it).
 """
 
 from __future__ import annotations
@@ -45,17 +44,6 @@ RESULTS = Path(__file__).resolve().parent.parent / "results"
 """The checkout's results/ folder (``annotate``'s default)."""
 MARKER = "RESTORED_FROM_RECORD"
 FIELDS = ("env", "method", "seeds", "ifp_env_steps_per_seed", "num_patterns", "commit")
-KNOWN_COMMITS = {  # commits results/history.md gives for runs recorded before summary.json carried them
-    "clevr-talar-5seeds-2M-final": "320a93b",
-    "kitchen-talar-5seeds-600k-final": "320a93b",
-    "kitchen-talar-5seeds-1200k": "1fd39c6",
-    "clevr-talar-alltokens-5seeds-2M": "8b0276a",
-    "kitchen-talar-5seeds-scripted-posture-partial": "eceee9d",
-}
-CONFIGURED_STEPS = {  # the IFP budget of folders without config.json (from the command in results/history.md)
-    "clevr-compare-5seeds-400k": 400_000,
-    "clevr-compare-t4-5seeds-246k": 245_760,
-}
 
 
 def record(folder: Path, dest: Path, command: str, note: str = "") -> dict:
@@ -137,9 +125,9 @@ def annotation(path: Path, summary: dict) -> dict:
         rows = [json.loads(line) for line in (folder / "ifp_metrics.jsonl").read_text().splitlines()]
         steps, steps_note = int([r for r in rows if "eval/train/success_per_seed" in r][-1]["train/env_steps"]), "run"
     if steps is None:
-        steps = (config.get("ifp") or {}).get("total_env_steps") or CONFIGURED_STEPS.get(folder.name)
+        steps = (config.get("ifp") or {}).get("total_env_steps")
         steps_note = "configured (the run stops at the first chunk boundary past it)"
-    commit = provenance.get("commit") or KNOWN_COMMITS.get(folder.name)
+    commit = provenance.get("commit")
     block = {
         "env": env,
         "method": method,

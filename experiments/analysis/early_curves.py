@@ -1,7 +1,7 @@
 """Compare methods' learning curves up to a common env-step budget, for a run cut short of the paper's.
 
 ``python -m experiments.analysis.early_curves --until 327680 --split train
-"Fine-tuned BERT-continuous=runs/study/x/x" "BERT-continuous=results/kitchen-compare-5seeds-4M/bert-continuous" ...``
+"Fine-tuned BERT-continuous=runs/study/x/x" "BERT-continuous=results/kitchen-compare/bert-continuous" ...``
 
 Each ``LABEL=FOLDER`` names a record (``experiments.records record``'s ``ifp_metrics.jsonl``) or a run's method folder
 (``ifp/ppo/metrics.jsonl``). PPO here has no learning-rate schedule, so the first evaluations of a longer run are those
