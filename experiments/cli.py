@@ -223,10 +223,10 @@ class ArgumentParser(argparse.ArgumentParser):
         raise UsageError(re.sub(r"^argument ", "", message))
 
     def exit(self, status: int = 0, message: str | None = None) -> NoReturn:
+        if status:  # argparse exits with a status only through error(), which raises before: kept for completeness
+            raise CommandError((message or "").strip() or f"stopped with status {status}", status)
         if message:
-            print(message, file=sys.stderr, end="")
-        if status:
-            raise CommandError(message or "stopped", status)
+            print(message, end="")
         raise _HelpShown
 
 
@@ -269,13 +269,13 @@ class _Flag(argparse.Action):
         setattr(namespace, self.dest, option_string != self.negative)
 
 
-def _without_none(hint: Any) -> tuple[Any, bool]:
-    """(the type, whether None is allowed) of ``X | None``."""
+def _without_none(hint: Any) -> Any:
+    """``X`` of ``X | None`` (an option left out keeps the default, None included); other hints as they are."""
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
         members = [arg for arg in typing.get_args(hint) if arg is not type(None)]
         if len(members) == 1:
-            return members[0], len(members) < len(typing.get_args(hint))
-    return hint, False
+            return members[0]
+    return hint
 
 
 def _shown(value: Any) -> str:
@@ -286,23 +286,19 @@ def _shown(value: Any) -> str:
     return str(value)
 
 
-@dataclasses.dataclass
-class _Options:
-    """The options ``add_options`` made: dest -> field path, and nested configs that start as None."""
-
-    paths: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
-    positional: list[str] = dataclasses.field(default_factory=list)
-
-
-def add_options(parser: ArgumentParser, cls: type, default: Any, options: _Options, prefix: str = "", path=()) -> None:
+def add_options(
+    parser: ArgumentParser, cls: type, default: Any, paths: dict[str, tuple[str, ...]], prefix: str = "", path=()
+) -> None:
     """An argparse argument for each field of the dataclass ``cls`` (recursively for nested configs), its help the
-    field's docstring and its default ``default``'s value (``dataclasses.MISSING``: required)."""
+    field's docstring and its default ``default``'s value (``dataclasses.MISSING``: required). ``paths`` gets each
+    argument's dest -> the field's path (``("ifp", "total_env_steps")``); the arguments default to nothing at all
+    (``argparse.SUPPRESS``), so that the parse holds exactly what the command line gave."""
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
     for field in dataclasses.fields(cls):
         if not field.init:
             continue
-        hint, _ = _without_none(hints[field.name])
+        hint = _without_none(hints[field.name])
         value = getattr(default, field.name) if default is not dataclasses.MISSING else dataclasses.MISSING
         if value is dataclasses.MISSING and field.default is not dataclasses.MISSING:
             value = field.default
@@ -313,10 +309,10 @@ def add_options(parser: ArgumentParser, cls: type, default: Any, options: _Optio
         if dataclasses.is_dataclass(hint):
             nested = value if value not in (None, dataclasses.MISSING) else hint()
             inner = prefix if kind == "flatten" else f"{prefix}{field.name.replace('_', '-')}."
-            add_options(parser, hint, nested, options, inner, here)
+            add_options(parser, hint, nested, paths, inner, here)
             continue
         dest = ".".join(here)
-        options.paths[dest] = here
+        paths[dest] = here
         help_text = (plain(docs.get(field.name)) or "").replace("%", "%%")
         if value is dataclasses.MISSING:
             required = True
@@ -342,7 +338,6 @@ def add_options(parser: ArgumentParser, cls: type, default: Any, options: _Optio
         else:
             spec.update(type=READERS[hint], metavar=hint.__name__.upper() if hint is not str else "STR")
         if kind == "positional":
-            options.positional.append(dest)
             if not required and "nargs" not in spec:
                 spec["nargs"] = "?"
             spec["metavar"] = field.name.upper()
@@ -353,7 +348,7 @@ def add_options(parser: ArgumentParser, cls: type, default: Any, options: _Optio
 
 def _as_field(value: Any, hint: Any, option: str) -> Any:
     """A parsed value as the field holds it: a tuple for ``tuple[...]``, a dict of KEY VALUE pairs."""
-    hint, _ = _without_none(hint)
+    hint = _without_none(hint)
     if typing.get_origin(hint) is tuple:
         return tuple(value)
     if typing.get_origin(hint) is dict:
@@ -369,7 +364,7 @@ def _with_changes(cls: type, base: Any, changes: dict[tuple[str, ...], Any], pre
     hints = typing.get_type_hints(cls)
     values: dict[str, Any] = {}
     for field in dataclasses.fields(cls):
-        hint, _ = _without_none(hints[field.name])
+        hint = _without_none(hints[field.name])
         mine = {path[1:]: value for path, value in changes.items() if path[0] == field.name}
         inner = prefix if field.metadata.get("cli") == "flatten" else f"{prefix}{field.name.replace('_', '-')}."
         if dataclasses.is_dataclass(hint) and mine:
@@ -397,10 +392,10 @@ def parse(cls: type[T], argv: list[str] | None, *, default: T | None = None, des
     )
     usage = f"%(prog)s {positional} [options]".replace("  ", " ")  # the options are listed below, one by one
     parser = ArgumentParser(prog=program(), usage=usage, description=description)
-    options = _Options()
-    add_options(parser, cls, default if default is not None else dataclasses.MISSING, options)
+    paths: dict[str, tuple[str, ...]] = {}
+    add_options(parser, cls, default if default is not None else dataclasses.MISSING, paths)
     parsed = vars(parser.parse_args(sys.argv[1:] if argv is None else argv))
-    changes = {options.paths[dest]: value for dest, value in parsed.items()}
+    changes = {paths[dest]: value for dest, value in parsed.items()}
     return _with_changes(cls, default if default is not None else dataclasses.MISSING, changes)
 
 
