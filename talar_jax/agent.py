@@ -120,6 +120,9 @@ def find_method_folder(run_dir: str | Path, prefer: str | None = None) -> Path:
     if (run_dir / "ifp").exists():
         raise AgentError(f"{run_dir / CONFIG_FILE} is missing: {_rebuild_hint(run_dir)}")
     candidates = sorted(p.parent for p in run_dir.glob("*/config.json") if (p.parent / "ifp").exists())
+    unconfigured = sorted(p.parent for p in run_dir.glob("*/ifp") if not (p.parent / CONFIG_FILE).is_file())
+    if not candidates and len(unconfigured) == 1:
+        raise AgentError(f"{unconfigured[0] / CONFIG_FILE} is missing: {_rebuild_hint(unconfigured[0])}")
     if not candidates:
         raise AgentError(f"{run_dir} holds no experiment run (no <method>/config.json with an ifp stage)")
     if len(candidates) > 1:
@@ -208,10 +211,12 @@ def read_policy_params(folder: str | Path) -> dict[str, Any]:
     if (ppo_dir / POLICY_FILE).is_file():
         return _read_tree(ppo_dir / POLICY_FILE, folder, stage)
     checkpoints = ppo_dir / "checkpoints"
+    if not checkpoints.is_dir() and (folder / SHIPPED_RECORD).is_file():
+        raise AgentError(f"{ppo_dir / POLICY_FILE} is missing: {_rebuild_hint(folder, stage)}")
     if not checkpoints.is_dir():
         raise AgentError(f"{ppo_dir} has no policy checkpoints: {_rebuild_hint(folder, stage)}")
     try:
-        manager = ocp.CheckpointManager(checkpoints.absolute(), options=ocp.CheckpointManagerOptions(read_only=True))
+        manager = ocp.CheckpointManager(checkpoints.absolute())
         step = manager.latest_step()
         if step is None:
             raise AgentError(f"{checkpoints} holds no policy checkpoint: {_rebuild_hint(folder, stage)}")
@@ -220,8 +225,12 @@ def read_policy_params(folder: str | Path) -> dict[str, Any]:
     except AgentError:
         raise
     except Exception as error:  # orbax and tensorstore raise many types for a damaged checkpoint
-        message = str(error).strip().splitlines()[0][:200] if str(error).strip() else type(error).__name__
-        raise _damaged(checkpoints, f"the policy checkpoint does not restore: {message}", folder, stage) from None
+        lines = str(error).strip().splitlines()
+        problem = lines[0][:160] if lines else type(error).__name__
+        raise AgentError(
+            f"the policy checkpoint in {checkpoints} is damaged (it does not restore: {problem}): "
+            f"{_rebuild_hint(folder, stage)}"
+        ) from None
 
 
 def read_encoding_params(folder: Path, artifact: EncodingArtifact, policy_params: dict[str, Any] | None = None) -> Any:

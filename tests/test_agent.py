@@ -138,6 +138,17 @@ def test_agent_reads_sentences_as_the_run_did_and_acts(agent, talar_run):
     np.testing.assert_array_equal(success, agent.success_rate(codes, goals, jax.random.key(2)))
 
 
+def test_a_sentence_that_is_not_a_string_is_a_one_line_type_error(agent):
+    for bad, kind in ((123, "int"), (None, "NoneType"), (b"Open the door", "bytes")):
+        with pytest.raises(TypeError, match=f"understand takes one sentence, a str; got {kind}") as error:
+            agent.understand(bad)
+        assert "\n" not in str(error.value)
+    with pytest.raises(TypeError, match="a sentence is a str, got int: 7"):
+        agent.judge(["Push the red ball", 7])
+    with pytest.raises(TypeError, match="sentences are a str or a sequence of them, got int"):
+        agent.translate(123)
+
+
 def test_an_aligned_run_reads_sentences_through_its_generator_shaped_layer(agent, talar_run, tmp_path):
     """An aligned BERT-binary run (Fig. 12): the agent rebuilds the TL generator's networks from the run's encoding
     record and reads the seed's encoding layer from the policy checkpoint. The run here is the TALAR fixture's policy
