@@ -1,7 +1,7 @@
 """Writes the encoder's reference vectors with transformers' own BertModel (run once, outside the project venv).
 
 Set-up (a throw-away venv; torch first so pip takes the local CPU build), then from the checkout's root (nothing of
-the project is imported, so the venv needs no JAX):
+the project is imported but experiments.cli, which needs the standard library alone, so the venv needs no JAX):
     python3 -m venv /tmp/refvenv
     /tmp/refvenv/bin/pip install torch==2.13.0
     /tmp/refvenv/bin/pip install transformers numpy safetensors
@@ -20,12 +20,13 @@ Outputs (small, committed):
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
+
+from experiments.cli import ArgumentParser, UsageError, exit_status
 
 SENTENCES = [
     "Please open the door of the microwave.",
@@ -109,11 +110,7 @@ def _outputs(model, tokenizer, sentences: list[str], dims: int) -> dict[str, np.
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.bert_reference",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    parser = ArgumentParser(prog="python -m benchmarks.bert_reference", description=__doc__)
     parser.add_argument("--model", required=True, type=Path, help="folder of all-MiniLM-L6-v2 (or another BERT)")
     data = Path(__file__).resolve().parents[1] / "tests" / "data"
     parser.add_argument("--out", type=Path, default=data, help="folder of the reference files (default: tests/data)")
@@ -123,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         import torch
         import transformers
     except ImportError as error:
-        raise SystemExit(f"error: this needs torch and transformers ({error}); see the set-up in --help") from None
+        raise UsageError(f"this needs torch and transformers ({error}); see the set-up in --help") from None
     args.out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(0)
     versions = json.dumps({"transformers": transformers.__version__, "torch": torch.__version__})
@@ -170,4 +167,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(exit_status(main))

@@ -438,6 +438,7 @@ ARGPARSE_COMMANDS = (
     "experiments.analysis.translator_robustness",
     "benchmarks.accelerator",
     "benchmarks.aligned_encoder",
+    "benchmarks.bert_reference",
     "benchmarks.env_sps",
     "benchmarks.finetuned_bert",
     "benchmarks.kitchen_model_cost",
