@@ -37,7 +37,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from experiments.cli import ArgumentParser, CommandError, check_outputs, checked, command
+from experiments.cli import ArgumentParser, CommandError, check_outputs, checked, command, program
 from talar_jax.report import RECORD_FILES
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
@@ -161,7 +161,7 @@ def annotate(results: Path = RESULTS, check: bool = False) -> list[str]:
 
 
 def parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog="python -m experiments.records", description=__doc__)
+    parser = ArgumentParser(prog=program(), description=__doc__)  # talar-records or python -m experiments.records
     commands = parser.add_subparsers(dest="subcommand", required=True)
     to_record = commands.add_parser("record", help="copy a finished method folder's outputs into results/<name>")
     to_record.add_argument("method_dir", type=Path, help="a finished method folder, e.g. runs/kitchen/talar")
