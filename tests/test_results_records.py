@@ -37,3 +37,19 @@ def test_results_page_tables_are_well_formed():
         if header_cells is None:
             header_cells = cells
         assert cells == header_cells, f"results/README.md:{number} has {cells} cells, its table {header_cells}"
+
+
+HISTORY_IN_NAME = re.compile(r"session\d|recipe\d|\d{4}-\d\d-\d\d|fresh-clone|make-run|-alone|REDUCED|\d+seeds?-")
+
+
+def test_results_holds_one_named_folder_per_item():
+    """results/ has at most 15 top-level folders, each linked from the results page's folder table, and no folder at
+    any depth is named for its history (a session, recipe number, date, budget or how it was run): a superseded run
+    leaves the tree, and budget and seeds live in the record's README and metadata."""
+    results = ROOT / "results"
+    top = sorted(p.name for p in results.iterdir() if p.is_dir())
+    assert len(top) <= 15, top
+    page = (results / "README.md").read_text()
+    assert [name for name in top if f"]({name}/)" not in page] == []
+    named = [p.relative_to(results).as_posix() for p in results.glob("**/") if HISTORY_IN_NAME.search(p.name)]
+    assert named == []
