@@ -197,14 +197,14 @@ def chunk_config(name: str, sizes: Sizes) -> PPOConfig:
 def time_chunk(name: str, physics: str, ppo: PPOConfig, calls: int) -> dict:
     """Env steps/s of the seed-vmapped, jitted PPO chunk (``talar_jax.ppo``'s program), compile apart."""
     env = envs.make(name, physics=physics, **get_recipe(name).env_options)
-    trainer = make_train(ppo, env, GoalOneHotConditioner(env.num_goals))
+    learner = make_train(ppo, env, GoalOneHotConditioner(env.num_goals))
     keys = jax.random.split(jax.random.PRNGKey(ppo.seed), ppo.num_seeds)
     start = time.perf_counter()
-    init = jax.jit(jax.vmap(trainer.init)).lower(keys).compile()
+    init = jax.jit(jax.vmap(learner.init)).lower(keys).compile()
     compile_s = time.perf_counter() - start
     state = jax.block_until_ready(init(keys))
     start = time.perf_counter()
-    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
+    chunk = jax.jit(jax.vmap(learner.chunk)).lower(state).compile(compiler_options=learner.compiler_options)
     compile_s += time.perf_counter() - start
     seconds = []
     for _ in range(calls):

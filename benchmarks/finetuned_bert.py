@@ -45,10 +45,10 @@ def lookups(env_name: str) -> dict:
 
 def time_update(env, conditioner, config: PPOConfig, repeats: int) -> dict:
     """Seconds of one jitted PPO update (rollout + one epoch of minibatch steps) and of its rollout alone."""
-    trainer = make_train(config, env, conditioner)
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(0))
+    learner = make_train(config, env, conditioner)
+    state = jax.jit(learner.init)(jax.random.PRNGKey(0))
     start = time.perf_counter()
-    chunk = jax.jit(trainer.chunk).lower(state).compile(compiler_options=trainer.compiler_options)
+    chunk = jax.jit(learner.chunk).lower(state).compile(compiler_options=learner.compiler_options)
     compile_s = time.perf_counter() - start
     state, _ = chunk(state)  # warm-up
     jax.block_until_ready(state)

@@ -6,7 +6,7 @@ Times the experiment's IFP (the env recipe's PPO settings and env options, ``--s
 parts that add up to an update, all in one process so that they are compared side by side:
 
 - **physics**: the bare batched C physics of an update's env steps (random actions, no policy);
-- **learning**: an update's ``num_epochs`` SGD epochs alone (``Trainer.learn``, compiled as the chunk is, on a
+- **learning**: an update's ``num_epochs`` SGD epochs alone (``Learner.learn``, compiled as the chunk is, on a
   rollout-sized batch of random data: SGD has no data-dependent branches). Timed apart rather than as the difference
   of chunks with ten epochs and with one, since the two runs' policies, and so their physics (contacts), differ;
 - **acting**: the rest of the update: the policy's forward pass per step, the callback's host round trips, reward
@@ -60,13 +60,13 @@ def _learning_seconds(
     """Seconds of one update's SGD, all seeds (see the module docstring), and the matmul rate at the update's shape
     measured beside it: each timed call of the SGD is followed by one of ``matmul_program``'s chain, so that the two
     share the machine's state (other tenants, clock) and their ratio is steady where absolute times are not. Medians
-    of ``repeats`` pairs after a warm-up one. ``compiler_options``: the trainer's (None) or others, to compare."""
-    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
-    state = initial_state(trainer, config)
+    of ``repeats`` pairs after a warm-up one. ``compiler_options``: the learner's (None) or others, to compare."""
+    learner = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    state = initial_state(learner)
     keys = jax.random.split(jax.random.PRNGKey(1), config.num_seeds)
     args = (state.params, state.opt_state, _random_rollout_batch(config, env, state), keys)
-    options = trainer.compiler_options if compiler_options is None else compiler_options
-    learn = jax.jit(jax.vmap(trainer.learn)).lower(*args).compile(compiler_options=options)
+    options = learner.compiler_options if compiler_options is None else compiler_options
+    learn = jax.jit(jax.vmap(learner.learn)).lower(*args).compile(compiler_options=options)
     reference, reference_flops = matmul_program(*update_shape(config), 2000)
     learn_s, reference_s = [], []
     for _ in range(repeats + 1):
@@ -77,7 +77,7 @@ def _learning_seconds(
 
 def _random_rollout_batch(config: PPOConfig, env, state) -> Minibatch:
     """A seed-stacked flat ``Minibatch`` of one rollout's shapes: random data, the env's real instructions."""
-    seeds, size, spec = config.num_seeds, derive(config).batch_size, env.action_spec
+    seeds, size, spec = config.num_seeds, derive(config).env_steps_per_update, env.action_spec
     rng = np.random.default_rng(0)
     instruction = np.asarray(state.env.instruction)  # (seeds, num_envs, ...): real instructions, repeated
     instruction = np.concatenate([instruction] * -(-size // instruction.shape[1]), axis=1)[:, :size]
@@ -101,9 +101,9 @@ def _seconds(call: Callable[[], Any]) -> float:
 def _evaluation_seconds(config: PPOConfig, env) -> tuple[float, float]:
     """Seconds of one curve evaluation and of the final one (both splits, every seed), untrained policy: every
     episode runs to the time limit, an evaluation's most expensive case."""
-    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
-    params = initial_state(trainer, config).params
-    evaluate = make_evaluator(trainer, config, ("train", "test"), env.num_goals, params)
+    learner = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    params = initial_state(learner).params
+    evaluate = make_evaluator(learner, ("train", "test"), env.num_goals, params)
     seconds = []
     for final in (False, True):
         evaluate(params, 0, final)  # the final evaluation's programs compile on first use
@@ -125,7 +125,7 @@ def learning_flops_per_update(config: PPOConfig, env) -> float:
     hidden = list(config.hidden_sizes)
     action = env.action_spec.size
     per_sample = _mlp_flops([inputs, *hidden, action]) + _mlp_flops([inputs, *hidden, 1])
-    return 3.0 * per_sample * derive(config).batch_size * config.num_epochs * config.num_seeds
+    return 3.0 * per_sample * derive(config).env_steps_per_update * config.num_epochs * config.num_seeds
 
 
 def update_shape(config: PPOConfig) -> tuple[int, int]:
@@ -171,10 +171,10 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
     bench = BenchConfig((), (), chunk_steps=config.rollout_length)
     physics_sps = time_backend(env_name, "c", batch, bench, 1.0 if quick else 5.0, recipe.env_options)["steps_per_s"]
     physics = sizes.env_steps_per_update * seeds / physics_sps
-    curve_eval, final_eval = _evaluation_seconds(config, env)
+    curve_eval_s, final_eval_s = _evaluation_seconds(config, env)
     recipe_updates = derive(recipe.ifp).num_updates
     evaluations = -(-derive(recipe.ifp).num_chunks // recipe.ifp.eval_every_chunks)
-    eval_per_update = (evaluations * curve_eval + final_eval) / recipe_updates
+    eval_per_update = (evaluations * curve_eval_s + final_eval_s) / recipe_updates
     flops = learning_flops_per_update(config, env)
     return {
         "env": env_name,
@@ -186,8 +186,8 @@ def measure(env_name: str, seeds: int, repeats: int, quick: bool) -> dict:
         "acting_overhead_s": full - learning - physics,
         "learning_s": learning,
         "learning_process_flag_s": learning_process_flag,
-        "eval_curve_s": curve_eval,
-        "eval_final_s": final_eval,
+        "eval_curve_s": curve_eval_s,
+        "eval_final_s": final_eval_s,
         "eval_per_update_s": eval_per_update,
         "eval_share": eval_per_update / (full + eval_per_update),
         "ratio_to_physics": (full + eval_per_update) / physics,

@@ -35,10 +35,10 @@ def jax_ppo_sps(env_name: str, physics: str, num_envs: int, updates_per_chunk: i
     """Env steps/s of jitted PPO chunks (acting + learning), compile time apart."""
     env = envs.make(env_name, physics=physics)
     config = PPOConfig(num_envs=num_envs, rollout_length=64, updates_per_chunk=updates_per_chunk)
-    trainer = make_train(config, env, GoalOneHotConditioner(env.num_goals))
-    state = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), 1))
+    learner = make_train(config, env, GoalOneHotConditioner(env.num_goals))
+    state = jax.jit(jax.vmap(learner.init))(jax.random.split(jax.random.PRNGKey(0), 1))
     start = time.perf_counter()
-    chunk = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
+    chunk = jax.jit(jax.vmap(learner.chunk)).lower(state).compile(compiler_options=learner.compiler_options)
     compile_s = time.perf_counter() - start
     state, _ = chunk(state)  # warm-up
     jax.block_until_ready(state)
@@ -133,7 +133,7 @@ def main() -> None:
     runtime.configure(compile_cache=False)  # compile time is part of what benchmarks report
     parser = ArgumentParser(prog="python -m benchmarks.train_sps", description=__doc__)
     parser.add_argument("--envs", nargs="+", default=["clevr", "kitchen"], help="envs to time (default: clevr kitchen)")
-    parser.add_argument("--physics", nargs="+", default=["c", "mjx"], help="physics backends to time (default: c mjx)")
+    parser.add_argument("--physics", nargs="+", default=["c", "mjx"], help="physics engines to time (default: c mjx)")
     parser.add_argument("--num-envs", type=int, default=64, help="envs of the talar-jax PPO (default: 64)")
     parser.add_argument("--updates-per-chunk", type=int, default=2, help="PPO updates per jitted chunk (default: 2)")
     parser.add_argument("--chunks", type=int, default=2, help="chunks timed after compilation (default: 2)")

@@ -134,8 +134,8 @@ def _train_policy(args: OracleArgs, env, conditioner) -> tuple[dict, Any]:
         "target_reached": result.target_reached,
         "env_steps": result.env_steps,
         "train_wall_s": result.wall_s,
-        "eval": result.final_eval,
-        "success": float(result.final_eval["train"]["success"]),
+        "eval": result.last_eval,
+        "success": float(result.last_eval["train"]["success"]),
         "ppo_config": dataclasses.asdict(config),
     }
     print(

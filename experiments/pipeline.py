@@ -123,7 +123,7 @@ def stage_ifp(config: ExperimentConfig, setup: MethodSetup, env) -> StageResult:
         return {
             "env_steps": result.env_steps,
             "wall_s": result.wall_s,
-            **{f"{split}_success_per_seed": ev["success_per_seed"] for split, ev in result.final_eval.items()},
+            **{f"{split}_success_per_seed": ev["success_per_seed"] for split, ev in result.last_eval.items()},
         }
 
     return run_stage(config.out, f"{run_name(config)}/ifp", key, body, reuse_from=config.reuse_stages)

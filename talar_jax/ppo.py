@@ -1,11 +1,11 @@
 """End-to-end jitted PPO (PureJaxRL shape) shared by the oracle and every language-conditioned method.
 
-``make_train(config, env, conditioner)`` returns pure functions: ``init(rng)``, ``chunk(state)`` (a
-``lax.scan`` over ``updates_per_chunk`` updates: rollout, reward normalisation, GAE, epochs x minibatches),
-``evaluate(params, rng, split)`` and ``train(rng)`` (all chunks in one program). ``run_ppo`` vmaps them over
-seeds, jits them, and runs the host loop: progress bar, evaluation on the train/test instruction splits,
-JSON-lines logging, orbax checkpoints after each chunk and resume from the latest one. Discrete or
-continuous actions are chosen by the env's action spec (``networks.make_distribution``), nothing else.
+``make_train(config, env, conditioner)`` returns a ``Learner``, whose methods are pure functions of one seed:
+``init(rng)``, ``chunk(state)`` (a ``lax.scan`` over ``updates_per_chunk`` updates: rollout, reward normalisation,
+GAE, epochs x minibatches), ``evaluate(params, rng, split)`` and ``train(rng)`` (all chunks in one program).
+``run_ppo`` vmaps them over seeds, jits them, and runs the host loop: progress bar, evaluation on the train/test
+instruction splits, JSON-lines logging, orbax checkpoints after each chunk and resume from the latest one. Discrete
+or continuous actions are chosen by the env's action spec (``networks.make_distribution``), nothing else.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from talar_jax.logging import JsonLinesLogger, Logger, MultiLogger, NoOpLogger
 from talar_jax.losses import compute_gae, compute_ppo_loss, init_return_normalizer, normalize_rollout_rewards
 from talar_jax.networks import (
     OBS_NORMALIZER,
-    PPONetworks,
     init_observation_stats,
     make_inference_fn,
     make_ppo_networks,
@@ -132,9 +131,9 @@ class PPOConfig:
 class PPODerived(NamedTuple):
     """Sizes derived from a ``PPOConfig`` (never stored back into it)."""
 
-    batch_size: int
-    num_minibatches: int
     env_steps_per_update: int
+    """Env steps of one seed's update: the rows of the flat rollout its epochs learn on."""
+    num_minibatches: int
     env_steps_per_chunk: int
     num_chunks: int
     num_updates: int
@@ -147,9 +146,8 @@ def derive(config: PPOConfig) -> PPODerived:
     per_chunk = per_update * config.updates_per_chunk
     num_chunks = max(1, math.ceil(config.total_env_steps / per_chunk))
     return PPODerived(
-        batch_size=per_update,
-        num_minibatches=per_update // config.minibatch_size,
         env_steps_per_update=per_update,
+        num_minibatches=per_update // config.minibatch_size,
         env_steps_per_chunk=per_chunk,
         num_chunks=num_chunks,
         num_updates=num_chunks * config.updates_per_chunk,
@@ -168,25 +166,9 @@ class Minibatch(NamedTuple):
     returns: jax.Array
 
 
-class Trainer(NamedTuple):
-    """Pure functions of one seed (vmap over seeds, then jit)."""
-
-    networks: PPONetworks
-    make_policy: Callable[..., Callable[..., jax.Array]]
-    init: Callable[[jax.Array], TrainingState]
-    chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, jax.Array]]]
-    evaluate: Callable[..., dict[str, jax.Array]]
-    train: Callable[[jax.Array], tuple[TrainingState, dict[str, jax.Array]]]
-    learn: Callable[..., tuple[dict[str, Any], Any, dict[str, jax.Array]]]
-    """An update's SGD alone: ``learn(params, opt_state, batch, rng) -> (params, opt_state, loss metrics)`` for a
-    flat ``Minibatch`` of one rollout (what ``chunk`` runs after each rollout; benchmarks time it apart)."""
-    compiler_options: dict[str, Any]
-    """XLA options for compiling ``chunk`` and ``evaluate`` (``Lowered.compile(compiler_options=...)``): the
-    env's physics decides (``envs.runtime.program_compiler_options``)."""
-
-
-class _Learner:
-    """Holds the constants of a run; every method is a pure function of its arguments."""
+class Learner:
+    """PPO for one seed: holds the constants of a run, and every method is a pure function of its arguments (vmap
+    ``init``, ``chunk``, ``evaluate``, ``learn`` or ``train`` over seeds, then jit)."""
 
     def __init__(self, config: PPOConfig, env: Any, conditioner: Conditioner):
         self.config = config
@@ -200,6 +182,10 @@ class _Learner:
         self.optimizer = optax.chain(
             optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate, eps=1e-5)
         )
+        # XLA options for compiling ``chunk`` and ``evaluate`` (``Lowered.compile(compiler_options=...)``): the env's
+        # physics decides (``envs.runtime.program_compiler_options``); one that does not name its physics may step MJX.
+        steps_mjx = getattr(getattr(env, "unwrapped", env), "backend", None) != "c"
+        self.compiler_options = program_compiler_options(steps_mjx)
 
     # --- network application -------------------------------------------------------------------
     def _inputs(self, params: dict[str, Any], obs: jax.Array, instruction: jax.Array) -> jax.Array:
@@ -270,13 +256,15 @@ class _Learner:
         return ({**params, **optax.apply_updates(trainable, updates)}, opt_state), metrics
 
     def _epoch(self, batch: Minibatch, carry: tuple[Any, Any], rng: jax.Array):
-        order = shuffled_order(rng, self.sizes.batch_size)
+        order = shuffled_order(rng, self.sizes.env_steps_per_update)
         shape = (self.sizes.num_minibatches, self.config.minibatch_size)
         minibatches = jax.tree.map(lambda x: x[order].reshape(shape + x.shape[1:]), batch)
         return jax.lax.scan(self._minibatch_step, carry, minibatches)
 
     def learn(self, params: dict[str, Any], opt_state: Any, batch: Minibatch, rng: jax.Array):
-        """``num_epochs`` passes of minibatch SGD over a flat rollout ``batch``, each in a fresh random order."""
+        """An update's SGD alone: ``num_epochs`` passes of minibatch SGD over a flat rollout ``batch``, each in a
+        fresh random order; returns ``(params, opt_state, loss metrics)`` (what ``chunk`` runs after each rollout;
+        benchmarks time it apart)."""
         epoch = functools.partial(self._epoch, batch)
         (params, opt_state), metrics = jax.lax.scan(
             epoch, (params, opt_state), jax.random.split(rng, self.config.num_epochs)
@@ -299,17 +287,16 @@ class _Learner:
             rewards, traj.value, bootstrap, traj.termination, traj.truncation, c.gamma, c.gae_lambda
         )
         batch = Minibatch(traj.obs, traj.instruction, traj.action, traj.log_prob, advantages, returns)
-        batch = jax.tree.map(lambda x: x.reshape((self.sizes.batch_size,) + x.shape[2:]), batch)
+        batch = jax.tree.map(lambda x: x.reshape((self.sizes.env_steps_per_update,) + x.shape[2:]), batch)
         params, opt_state, loss_metrics = self.learn(state.params, state.opt_state, batch, rng_sgd)
         if c.normalize_observations:  # the rollout was acted and learned on with the old statistics
             params = {**params, OBS_NORMALIZER: update_observation_stats(params[OBS_NORMALIZER], traj.obs)}
-        done = traj.episode_done
         metrics = {key: jnp.mean(value) for key, value in loss_metrics.items()}
         if "log_std" in params["policy"]["params"]:
             metrics["policy/std"] = jnp.mean(jnp.exp(params["policy"]["params"]["log_std"]))
         metrics |= {
-            "train/episodes": jnp.sum(done),
-            "train/successes": jnp.sum(done * traj.success),
+            "train/episodes": jnp.sum(traj.episode_done),
+            "train/successes": jnp.sum(traj.episode_done * traj.success),
             "train/return_sum": jnp.sum(traj.episode_return),
             "train/reward_std": jnp.sqrt(normalizer.var),
         }
@@ -348,21 +335,9 @@ class _Learner:
         return jax.lax.scan(lambda state, _: self.chunk(state), self.init(rng), None, length=self.sizes.num_chunks)
 
 
-def make_train(config: PPOConfig, env: Any, conditioner: Conditioner) -> Trainer:
-    """Pure per-seed PPO functions for an (unwrapped) env and a conditioner; see ``Trainer``."""
-    learner = _Learner(config, env, conditioner)
-    # An env that does not name its physics may step MJX inside the program.
-    options = program_compiler_options(getattr(getattr(env, "unwrapped", env), "backend", None) != "c")
-    return Trainer(
-        learner.networks,
-        learner.make_policy,
-        learner.init,
-        learner.chunk,
-        learner.evaluate,
-        learner.train,
-        learner.learn,
-        options,
-    )
+def make_train(config: PPOConfig, env: Any, conditioner: Conditioner) -> Learner:
+    """The per-seed PPO ``Learner`` of an (unwrapped) env and a conditioner."""
+    return Learner(config, env, conditioner)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -374,11 +349,14 @@ class PPOResult:
 
     state: TrainingState
     history: list[dict[str, Any]]
-    final_eval: dict[str, dict[str, Any]]
+    """Every chunk's row of metrics (as ``metrics.jsonl`` holds them), of the chunks this call ran."""
+    last_eval: dict[str, dict[str, Any]]
+    """The run's last evaluation, split -> ``summarize_eval``: after the last chunk (``final_eval_episodes``), or
+    the one that reached the target when the run stopped there."""
     env_steps: int
     wall_s: float
     target_reached: dict[str, float] | None
-    trainer: Trainer
+    learner: Learner
 
     @property
     def params(self) -> dict[str, Any]:
@@ -432,11 +410,12 @@ def _chunk_metrics(metrics: dict[str, np.ndarray]) -> dict[str, Any]:
     return out
 
 
-def initial_state(trainer: Trainer, config: PPOConfig, initial_params: dict[str, Any] | None = None) -> TrainingState:
+def initial_state(learner: Learner, initial_params: dict[str, Any] | None = None) -> TrainingState:
     """Fresh seed-stacked training states (``num_seeds`` leading axis, sharded over devices), with
     ``initial_params`` (same structure, by key) replacing the freshly initialised parameters."""
+    config = learner.config
     seed_keys = jax.random.split(jax.random.PRNGKey(config.seed), config.num_seeds)
-    state = jax.jit(jax.vmap(trainer.init))(seed_keys)
+    state = jax.jit(jax.vmap(learner.init))(seed_keys)
     if initial_params:
         params = dict(state.params)
         for name, value in initial_params.items():
@@ -447,6 +426,20 @@ def initial_state(trainer: Trainer, config: PPOConfig, initial_params: dict[str,
     return shard_seeds(state, config.num_seeds)
 
 
+@dataclasses.dataclass(frozen=True)
+class Progress:
+    """How far a run has got: what ``progress.json`` holds beside each checkpoint, and what a resumed run starts
+    from."""
+
+    chunks: int = 0
+    """Chunks trained."""
+    wall_s: float = 0.0
+    """Seconds spent in those chunks (compilation and evaluation left out)."""
+    target_reached: dict[str, float] | None = None
+    """The first evaluation whose success reached ``target_success``: its ``env_steps``, ``wall_s`` and
+    ``success`` (None: not reached, or no target)."""
+
+
 class RunFiles:
     """A run folder: orbax checkpoints after each chunk, ``progress.json`` and ``metrics.jsonl``; resume from it."""
 
@@ -455,39 +448,39 @@ class RunFiles:
         self.progress_path = Path(out_dir) / "progress.json"
         self.logger = JsonLinesLogger(Path(out_dir) / "metrics.jsonl")
 
-    def restore(self, state: TrainingState, done: dict[str, Any]) -> tuple[TrainingState, dict[str, Any]]:
-        """The latest checkpoint's state and progress record, or ``(state, done)`` when the folder has none."""
+    def restore(self, state: TrainingState) -> tuple[TrainingState, Progress]:
+        """The latest checkpoint's state and progress, or ``(state, Progress())`` when the folder has none."""
         latest = self.checkpointer.latest_step()
         if latest is None:
-            return state, done
-        state = self.checkpointer.restore(latest, state)
-        if self.progress_path.exists():
-            done = json.loads(self.progress_path.read_text())
-        return state, {**done, "chunks": latest}
+            return state, Progress()
+        saved = json.loads(self.progress_path.read_text()) if self.progress_path.exists() else {}
+        progress = Progress(latest, float(saved.get("wall_s", 0.0)), saved.get("target_reached"))
+        return self.checkpointer.restore(latest, state), progress
 
-    def save(self, chunks: int, state: TrainingState, wall_s: float, target_reached: Any) -> None:
-        self.checkpointer.save(chunks, state)
-        write_json_atomic(self.progress_path, {"chunks": chunks, "wall_s": wall_s, "target_reached": target_reached})
+    def save(self, state: TrainingState, progress: Progress) -> None:
+        self.checkpointer.save(progress.chunks, state)
+        write_json_atomic(self.progress_path, dataclasses.asdict(progress))
 
     def close(self) -> None:
         self.checkpointer.close()
 
 
 def make_evaluator(
-    trainer: Trainer, config: PPOConfig, splits: Sequence[str], num_goals: int, params: dict[str, Any]
+    learner: Learner, splits: Sequence[str], num_goals: int, params: dict[str, Any]
 ) -> Callable[..., dict[str, dict[str, Any]]]:
     """``evaluate(seed_params, index, final=False) -> split -> summarize_eval(...)``: fresh episodes per split
     (``eval_episodes``, or ``final_eval_episodes`` when ``final``), keys from ``config.seed`` and ``index`` (so a
     resumed run evaluates exactly as an uninterrupted one). The curve's programs are compiled here for seed-stacked
     ``params`` of this structure, so an evaluation's wall-clock is its episodes; the final one's on first use."""
+    config = learner.config
     eval_root = jax.random.PRNGKey(config.seed + 1_000_003)
     keys = jax.random.split(eval_root, config.num_seeds)
 
     def compile_programs(num_episodes: int) -> dict[str, Any]:
         return {
-            split: jax.jit(jax.vmap(functools.partial(trainer.evaluate, split=split, num_episodes=num_episodes)))
+            split: jax.jit(jax.vmap(functools.partial(learner.evaluate, split=split, num_episodes=num_episodes)))
             .lower(params, keys)
-            .compile(compiler_options=trainer.compiler_options)
+            .compile(compiler_options=learner.compiler_options)
             for split in splits
         }
 
@@ -502,125 +495,6 @@ def make_evaluator(
         return {split: summarize_eval(record, num_goals) for split, record in records.items()}
 
     return evaluate
-
-
-class _Compiled(NamedTuple):
-    """A run's compiled programs: one chunk of training of every seed, the evaluator, and the seconds both took."""
-
-    chunk: Callable[[TrainingState], tuple[TrainingState, dict[str, Any]]]
-    evaluate: Callable[..., dict[str, dict[str, Any]]]
-    seconds: float
-
-
-def _compile_run(
-    trainer: Trainer, config: PPOConfig, eval_splits: Sequence[str], num_goals: int, state: TrainingState
-) -> _Compiled:
-    compile_start = time.perf_counter()
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk)).lower(state).compile(compiler_options=trainer.compiler_options)
-    evaluate = make_evaluator(trainer, config, eval_splits, num_goals, state.params)
-    return _Compiled(chunk_fn, evaluate, time.perf_counter() - compile_start)
-
-
-def _start_state(
-    trainer: Trainer, config: PPOConfig, initial_params: dict[str, Any] | None, run_files: RunFiles | None
-) -> tuple[TrainingState, dict[str, Any]]:
-    """The state and progress record (chunks done, wall-clock, target reached) a run starts from: fresh, or the
-    latest checkpoint's when the run folder holds one."""
-    state = initial_state(trainer, config, initial_params)
-    done = {"chunks": 0, "wall_s": 0.0, "target_reached": None}
-    if run_files is None:
-        return state, done
-    return run_files.restore(state, done)
-
-
-def _train_chunk(
-    chunk_fn: Callable, state: TrainingState, config: PPOConfig, sizes: PPODerived, chunk_index: int, wall_s: float
-) -> tuple[TrainingState, dict[str, Any]]:
-    """Runs chunk ``chunk_index``; returns the new state and the chunk's row of training metrics (``wall_s``: the
-    run's wall-clock before the chunk; the row's ``train/wall_s`` the one after it)."""
-    start = time.perf_counter()
-    state, metrics = chunk_fn(state)
-    metrics = jax.device_get(metrics)
-    chunk_s = time.perf_counter() - start
-    return state, {
-        "train/env_steps": (chunk_index + 1) * sizes.env_steps_per_chunk,
-        "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
-        "train/chunk_s": chunk_s,
-        "train/wall_s": wall_s + chunk_s,
-        **_chunk_metrics(metrics),
-    }
-
-
-def _evaluate_chunk(
-    evaluate: Callable, params: dict[str, Any], chunk_index: int, row: dict[str, Any], final: bool = False
-) -> dict[str, dict[str, Any]]:
-    """Evaluates the seeds' ``params`` after chunk ``chunk_index``; adds the seconds it took and every split's
-    summary to the chunk's ``row``."""
-    eval_start = time.perf_counter()
-    final_eval = evaluate(params, chunk_index, final)
-    row["eval/seconds"] = time.perf_counter() - eval_start
-    for split, summary in final_eval.items():
-        row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
-    return final_eval
-
-
-def _reaches_target(
-    done: dict[str, Any], target_success: float | None, final_eval: dict[str, dict[str, Any]], row: dict[str, Any]
-) -> bool:
-    """Whether this evaluation is the first whose success (training instructions, else the first split) reaches
-    ``target_success``; if so, records its env steps, wall-clock and success in ``done["target_reached"]``."""
-    success = final_eval.get("train", next(iter(final_eval.values())))["success"]
-    reached = target_success is not None and done["target_reached"] is None and success >= target_success
-    if reached:
-        done["target_reached"] = {
-            "env_steps": row["train/env_steps"],
-            "wall_s": row["train/wall_s"],
-            "success": success,
-        }
-    return reached
-
-
-def _train_chunks(
-    state: TrainingState,
-    done: dict[str, Any],
-    compiled: _Compiled,
-    config: PPOConfig,
-    eval_splits: Sequence[str],
-    run_files: RunFiles | None,
-    log: Logger,
-    target_success: float | None,
-    stop_at_target: bool,
-    progress: bool,
-) -> tuple[TrainingState, list[dict[str, Any]], dict[str, dict[str, Any]], float]:
-    """Runs the chunks after ``done["chunks"]`` (until the target when ``stop_at_target``): each one trained,
-    evaluated every ``eval_every_chunks`` chunks and after the last, checkpointed and logged. Returns the state, the
-    rows of the chunks run, the last evaluation ({} when none ran) and the run's wall-clock."""
-    sizes = derive(config)
-    history: list[dict[str, Any]] = []
-    final_eval: dict[str, dict[str, Any]] = {}
-    wall_s = float(done["wall_s"])
-    stop = stop_at_target and done["target_reached"] is not None
-    bar = tqdm(total=sizes.num_chunks, initial=done["chunks"], disable=not progress, unit="chunk", desc="ppo")
-    for chunk_index in range(done["chunks"], sizes.num_chunks):
-        if stop:
-            break
-        state, row = _train_chunk(compiled.chunk, state, config, sizes, chunk_index, wall_s)
-        wall_s = row["train/wall_s"]
-        if chunk_index == done["chunks"]:
-            row["train/compile_s"] = compiled.seconds
-        last = chunk_index == sizes.num_chunks - 1
-        if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
-            final_eval = _evaluate_chunk(compiled.evaluate, state.params, chunk_index, row, final=last)
-            stop = _reaches_target(done, target_success, final_eval, row) and stop_at_target
-        if run_files is not None:
-            run_files.save(chunk_index + 1, state, wall_s, done["target_reached"])
-        history.append(row)
-        log.write(chunk_index + 1, row)
-        bar.update(1)
-        shown = ("eval/train/success", "train/success")
-        bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
-    bar.close()
-    return state, history, final_eval, wall_s
 
 
 def run_ppo(
@@ -647,7 +521,8 @@ def run_ppo(
         progress: show a tqdm bar.
         logger: receives every chunk's metrics (in addition to ``metrics.jsonl``).
         eval_splits: instruction splits to evaluate on.
-        target_success: record the env steps and wall-clock at which ``eval/train/success`` first reaches this.
+        target_success: record the env steps and wall-clock at which evaluation success (training instructions,
+            else the first split) first reaches this.
         stop_at_target: stop training once the target is reached.
         initial_params: seed-stacked parameters replacing freshly initialised ones, by key ("policy", "value",
             "conditioner"; same structure), e.g. one frozen instruction table per seed or behaviour-cloned
@@ -658,25 +533,72 @@ def run_ppo(
     """
     for split in eval_splits:
         check_split(split)
-    trainer = make_train(config, env, conditioner)
+    learner = make_train(config, env, conditioner)
+    sizes = learner.sizes
     run_files = RunFiles(out_dir, config) if out_dir is not None else None
-    state, done = _start_state(trainer, config, initial_params, run_files)
+    state, start = initial_state(learner, initial_params), Progress()
+    if run_files is not None:
+        state, start = run_files.restore(state)
     log = MultiLogger(logger or NoOpLogger(), *([run_files.logger] if run_files is not None else []))
-    compiled = _compile_run(trainer, config, eval_splits, env.num_goals, state)
-    state, history, final_eval, wall_s = _train_chunks(
-        state, done, compiled, config, eval_splits, run_files, log, target_success, stop_at_target, progress
-    )
-    if not final_eval and eval_splits:
-        final_eval = compiled.evaluate(state.params, derive(config).num_chunks, final=True)
+
+    compile_start = time.perf_counter()
+    chunk = jax.jit(jax.vmap(learner.chunk)).lower(state).compile(compiler_options=learner.compiler_options)
+    evaluate = make_evaluator(learner, eval_splits, env.num_goals, state.params)
+    compile_s = time.perf_counter() - compile_start
+
+    history: list[dict[str, Any]] = []
+    last_eval: dict[str, dict[str, Any]] = {}
+    wall_s, target_reached = start.wall_s, start.target_reached
+    bar = tqdm(total=sizes.num_chunks, initial=start.chunks, disable=not progress, unit="chunk", desc="ppo")
+    for chunk_index in range(start.chunks, sizes.num_chunks):
+        if stop_at_target and target_reached is not None:
+            break
+        chunk_start = time.perf_counter()
+        state, metrics = chunk(state)
+        metrics = jax.device_get(metrics)
+        chunk_s = time.perf_counter() - chunk_start
+        wall_s += chunk_s
+        row = {
+            "train/env_steps": (chunk_index + 1) * sizes.env_steps_per_chunk,
+            "train/sps": sizes.env_steps_per_chunk * config.num_seeds / chunk_s,
+            "train/chunk_s": chunk_s,
+            "train/wall_s": wall_s,
+            **_chunk_metrics(metrics),
+        }
+        if chunk_index == start.chunks:
+            row["train/compile_s"] = compile_s
+
+        last = chunk_index == sizes.num_chunks - 1
+        if eval_splits and ((chunk_index + 1) % config.eval_every_chunks == 0 or last):
+            eval_start = time.perf_counter()
+            last_eval = evaluate(state.params, chunk_index, final=last)
+            row["eval/seconds"] = time.perf_counter() - eval_start
+            for split, summary in last_eval.items():
+                row |= {f"eval/{split}/{key}": value for key, value in summary.items()}
+            success = last_eval.get("train", next(iter(last_eval.values())))["success"]
+            if target_success is not None and target_reached is None and success >= target_success:
+                target_reached = {"env_steps": row["train/env_steps"], "wall_s": wall_s, "success": success}
+
+        if run_files is not None:
+            run_files.save(state, Progress(chunk_index + 1, wall_s, target_reached))
+        history.append(row)
+        log.write(chunk_index + 1, row)
+        bar.update(1)
+        shown = ("eval/train/success", "train/success")
+        bar.set_postfix({key: f"{row[key]:.3g}" for key in shown if key in row})
+    bar.close()
+
+    if not last_eval and eval_splits:  # a resumed run that had finished (or stopped at its target) before
+        last_eval = evaluate(state.params, sizes.num_chunks, final=True)
     if run_files is not None:
         run_files.close()
     log.close()
     return PPOResult(
         state=state,
         history=history,
-        final_eval=final_eval,
+        last_eval=last_eval,
         env_steps=int(np.max(jax.device_get(state.env_steps))),
         wall_s=wall_s,
-        target_reached=done["target_reached"],
-        trainer=trainer,
+        target_reached=target_reached,
+        learner=learner,
     )

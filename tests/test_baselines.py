@@ -188,9 +188,9 @@ def test_one_ppo_update_moves_the_finetuned_bert():
     lookup = {"train": (np.arange(8, dtype=np.int32).reshape(4, 2), np.full(4, 2, np.int32))}
     conditioner = FinetunedBertConditioner(encoder.config, encoder.params, ids, mask, lookup, 8, True, 1, np.arange(8))
     config = PPOConfig(num_envs=8, rollout_length=16, minibatch_size=64, num_epochs=2, updates_per_chunk=1)
-    trainer = make_train(config, PointEnv(), conditioner)
-    state = trainer.init(jax.random.PRNGKey(0))
-    after, _ = jax.jit(trainer.chunk)(state)
+    learner = make_train(config, PointEnv(), conditioner)
+    state = learner.init(jax.random.PRNGKey(0))
+    after, _ = jax.jit(learner.chunk)(state)
     moved = jax.tree.map(
         lambda a, b: float(jnp.max(jnp.abs(a - b))), after.params["conditioner"], state.params["conditioner"]
     )
@@ -209,7 +209,7 @@ def test_ppo_trains_the_finetuned_bert_with_the_policy():
     result = run_ppo(
         config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False, eval_splits=("train",)
     )
-    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    assert result.last_eval["train"]["success"] >= 0.8, result.last_eval["train"]
     start = conditioner.init(jax.random.PRNGKey(0))["bert"]
     moved = jax.tree.map(lambda a, b: float(jnp.max(jnp.abs(a[0] - b))), result.params["conditioner"]["bert"], start)
     assert max(jax.tree.leaves(moved)) > 1e-4  # BERT itself was optimised with the policy

@@ -115,4 +115,4 @@ def test_goal_given_ppo_opens_the_microwave_within_a_small_budget():
         recipe.ifp, num_seeds=2, total_env_steps=409_600, eval_every_chunks=100, eval_episodes=32
     )
     result = run_ppo(config, env, GoalOneHotConditioner(env.num_goals), None, progress=False, eval_splits=("train",))
-    assert min(result.final_eval["train"]["success_per_seed"]) > 0.5, result.final_eval["train"]
+    assert min(result.last_eval["train"]["success_per_seed"]) > 0.5, result.last_eval["train"]

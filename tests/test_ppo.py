@@ -51,7 +51,8 @@ def discrete_run(tmp_path_factory):
 
 def test_derive():
     sizes = derive(CONFIG)
-    assert (sizes.batch_size, sizes.num_minibatches, sizes.num_chunks, sizes.total_env_steps) == (512, 4, 5, 25_600)
+    assert (sizes.env_steps_per_update, sizes.num_minibatches) == (512, 4)
+    assert (sizes.num_chunks, sizes.total_env_steps) == (5, 25_600)
     with pytest.raises(ValueError, match="multiple of minibatch_size"):
         PPOConfig(num_envs=3, rollout_length=5, minibatch_size=4)
     with pytest.raises(ValueError, match="num_epochs must be >= 1"):
@@ -61,9 +62,9 @@ def test_derive():
 def test_discrete_learns_and_seeds_are_vmapped(discrete_run):
     result, out = discrete_run
     assert len(result.history) == 5 and result.env_steps == 25_600
-    per_seed = result.final_eval["train"]["success_per_seed"]
+    per_seed = result.last_eval["train"]["success_per_seed"]
     assert len(per_seed) == 2 and min(per_seed) >= 0.8, per_seed
-    assert result.final_eval["test"]["success"] >= 0.8
+    assert result.last_eval["test"]["success"] >= 0.8
     assert result.target_reached is not None and result.target_reached["env_steps"] <= 25_600
     assert result.history[0]["eval/train/success"] < result.history[-1]["eval/train/success"]
     leaves = jax.tree.leaves(result.params)
@@ -89,6 +90,22 @@ def test_same_seed_same_metrics_and_resume(discrete_run, tmp_path):
         run_ppo(dataclasses.replace(CONFIG, learning_rate=1e-3), PointEnv(), GoalOneHotConditioner(4), tmp_path)
 
 
+def test_stop_at_target_and_resume_after_it(tmp_path):
+    """A run stops after the first evaluation reaching the target; resuming its folder trains nothing more, keeps
+    the recorded target and evaluates the stopped parameters afresh."""
+    config = dataclasses.replace(CONFIG, num_seeds=1, eval_episodes=8, final_eval_episodes=16)
+    point = PointEnv(), GoalOneHotConditioner(4)
+    stopped = run_ppo(config, *point, tmp_path, progress=False, target_success=0.0, stop_at_target=True)
+    assert [row["train/env_steps"] for row in stopped.history] == [5_120]
+    assert stopped.target_reached["env_steps"] == 5_120
+    assert stopped.target_reached["success"] == stopped.last_eval["train"]["success"]
+    resumed = run_ppo(config, *point, tmp_path, progress=False, target_success=0.0, stop_at_target=True)
+    assert resumed.history == [] and resumed.target_reached == stopped.target_reached
+    assert resumed.wall_s == stopped.wall_s and resumed.env_steps == 5_120
+    assert len(resumed.last_eval["train"]["success_per_goal"]) == 4
+    jax.tree.map(np.testing.assert_array_equal, resumed.params, stopped.params)
+
+
 def test_continuous_learns_with_trainable_conditioner():
     # Instructions 0..7: goal g has train instructions {2g, 2g+1}; the table rows start as noisy one-hots and train.
     table = np.repeat(np.eye(4, dtype=np.float32), 2, axis=0) + 0.1
@@ -98,7 +115,7 @@ def test_continuous_learns_with_trainable_conditioner():
     result = run_ppo(
         config, PointEnv(PointConfig(continuous=True)), conditioner, None, progress=False, eval_splits=("train",)
     )
-    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    assert result.last_eval["train"]["success"] >= 0.8, result.last_eval["train"]
     assert not np.allclose(result.params["conditioner"]["table"][0], table)  # optimised jointly with the policy
 
 
@@ -112,7 +129,7 @@ def test_observation_normalisation_statistics_and_learning():
     config = dataclasses.replace(CONFIG, num_seeds=1, total_env_steps=20_480, normalize_observations=True)
     env = PointEnv(PointConfig(continuous=True))
     result = run_ppo(config, env, GoalOneHotConditioner(4), None, progress=False, eval_splits=("train",))
-    assert result.final_eval["train"]["success"] >= 0.8, result.final_eval["train"]
+    assert result.last_eval["train"]["success"] >= 0.8, result.last_eval["train"]
     learned = jax.tree.map(lambda leaf: leaf[0], result.params["obs_normalizer"])
     # statistics of every observation acted on, untouched by the optimiser (Adam would move count and var too)
     np.testing.assert_allclose(learned["count"], 20_480, rtol=1e-6)
@@ -150,8 +167,8 @@ def test_collect_task_dataset(discrete_run, tmp_path):
 @pytest.mark.slow
 def test_whole_run_in_one_program():
     config = dataclasses.replace(CONFIG, total_env_steps=10_240)
-    trainer = make_train(config, PointEnv(), GoalOneHotConditioner(4))
-    state, metrics = jax.jit(jax.vmap(trainer.train))(jax.random.split(jax.random.PRNGKey(0), 2))
+    learner = make_train(config, PointEnv(), GoalOneHotConditioner(4))
+    state, metrics = jax.jit(jax.vmap(learner.train))(jax.random.split(jax.random.PRNGKey(0), 2))
     assert metrics["losses/value"].shape == (2, 2, 10)
     assert int(state.env_steps[0]) == 10_240
 
@@ -231,10 +248,10 @@ def test_evaluation_schedule_leaves_training_bit_identical(discrete_run):
     assert [_comparable(r)["train/success"] for r in other.history] == [r["train/success"] for r in result.history]
     evaluated = ["eval/train/success" in row for row in other.history]
     assert evaluated == [False, True, False, True, True]  # every 2 chunks, and after the last
-    per_seed_goal = other.final_eval["train"]["success_per_seed_goal"]
+    per_seed_goal = other.last_eval["train"]["success_per_seed_goal"]
     assert len(per_seed_goal) == 2 and all(len(row) == 4 for row in per_seed_goal)
     # the final evaluation's 96 episodes per seed: success rates in steps of 1/96 over the whole split's seeds
-    counts = np.array(other.final_eval["train"]["success_per_seed"]) * 96
+    counts = np.array(other.last_eval["train"]["success_per_seed"]) * 96
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
     with pytest.raises(ValueError, match="final_eval_episodes must be >= 0"):
         dataclasses.replace(CONFIG, final_eval_episodes=-1)
@@ -272,7 +289,7 @@ def test_evaluation_stops_when_every_episode_ended_with_the_same_records():
 
 
 def test_programs_compile_with_the_fusion_emitters_unless_they_step_mjx():
-    """The CPU flag MJX needs is overridden per program: a trainer of a C-physics env (or a high-level env over one)
+    """The CPU flag MJX needs is overridden per program: a learner of a C-physics env (or a high-level env over one)
     compiles its chunk with XLA's fusion emitters; one of an MJX env, or of an env that does not name its physics,
     keeps the process flag. ``learn`` is the update's SGD: the chunk's parameters follow from it."""
     import envs
@@ -289,18 +306,18 @@ def test_programs_compile_with_the_fusion_emitters_unless_they_step_mjx():
 
 
 def test_learn_is_the_updates_sgd():
-    """``Trainer.learn`` on a flat batch moves the parameters and returns per-epoch, per-minibatch loss metrics."""
+    """``Learner.learn`` on a flat batch moves the parameters and returns per-epoch, per-minibatch loss metrics."""
     from talar_jax.ppo import Minibatch
 
-    trainer = make_train(CONFIG, PointEnv(), GoalOneHotConditioner(4))
-    state = trainer.init(jax.random.PRNGKey(0))
-    size = derive(CONFIG).batch_size
+    learner = make_train(CONFIG, PointEnv(), GoalOneHotConditioner(4))
+    state = learner.init(jax.random.PRNGKey(0))
+    size = derive(CONFIG).env_steps_per_update
     rng = np.random.default_rng(0)
     normal = [jnp.asarray(rng.normal(size=size), jnp.float32) for _ in range(3)]
     obs = jnp.asarray(rng.normal(size=(size, PointEnv().observation_size)), jnp.float32)
     action = jnp.asarray(rng.integers(0, PointEnv().action_spec.size, size), jnp.int32)
     batch = Minibatch(obs, jnp.zeros(size, jnp.int32), action, *normal)
-    params, _, metrics = jax.jit(trainer.learn)(state.params, state.opt_state, batch, jax.random.PRNGKey(1))
+    params, _, metrics = jax.jit(learner.learn)(state.params, state.opt_state, batch, jax.random.PRNGKey(1))
     moved = [not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(params))]
     assert any(moved)
     assert metrics["losses/policy"].shape == (CONFIG.num_epochs, derive(CONFIG).num_minibatches)
