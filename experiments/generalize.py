@@ -31,7 +31,7 @@ from experiments.cli import POSITIONAL, UsageError, check_outputs, command, pars
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
-from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError, find_method_folder
+from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError, find_method_folder, read_config
 from talar_jax.confidence import VERDICTS
 from talar_jax.language import load_instructions, load_user_instructions
 from talar_jax.report import counted
@@ -198,7 +198,7 @@ def generalize(args: GeneralizeArgs) -> dict:
         raise UsageError(f"--sentence-episodes must be >= 0, got {args.sentence_episodes}")
     check_outputs((args.json, "--json", "file"), (args.markdown, "--markdown", "file"))
     folder = find_method_folder(args.run_dir, prefer="talar")
-    seeds = int(json.loads((folder / "config.json").read_text())["seeds"])
+    seeds = int(read_config(folder)["seeds"])
     per_seed, per_sentence, sizes = [], [], {}
     for seed in range(seeds):
         agent = load_agent(folder, seed=seed)

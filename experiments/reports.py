@@ -181,8 +181,9 @@ def load_agent(run_dir: str | Path, seed: int = 0, physics: str | None = None, c
 def write_encoding_record(folder: Path) -> None:
     """Writes a method folder's ``encoding.json`` from its ``config.json`` (for runs that predate the record)."""
     from experiments.methods import get_method
+    from talar_jax.agent import read_config
 
-    config = config_from_json(json.loads((folder / "config.json").read_text()))  # resolved when it was written
+    config = config_from_json(read_config(folder))  # resolved when it was written
     num_goals = len(get_recipe(config.env).goal_names())
     get_method(config.method).encoding(config, num_goals).write(folder)
 

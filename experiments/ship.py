@@ -28,6 +28,7 @@ from talar_jax.agent import (
     SHIPPED_AGENTS_DIR,
     SHIPPED_RECORD,
     AgentError,
+    read_config,
     read_policy_params,
 )
 from talar_jax.checkpoint import load_tree, save_tree, write_json_atomic
@@ -69,7 +70,7 @@ def ship(args: ShipArgs) -> Path:
         shutil.rmtree(target)
     method = target / folder.name
     (method / "ifp" / "ppo").mkdir(parents=True)
-    config = json.loads((folder / "config.json").read_text())
+    config = read_config(folder)
     config_seeds = config["seeds"]
     config["seeds"] = 1
     config["ifp"] = {**config["ifp"], "num_seeds": 1}

@@ -102,6 +102,19 @@ def test_a_run_folder_is_rebuilt_by_removing_the_stage_and_rerunning_its_command
     assert _snapshot(run) == before
 
 
+@pytest.mark.parametrize(("name", "problem"), [("config.json", "is damaged"), ("encoding.json", "is not valid JSON")])
+def test_generalize_names_a_truncated_record(name, problem, tmp_path, capsys):
+    run = _copy(tmp_path, shipped=False)
+    _truncate(run / "talar" / name)
+    mine = tmp_path / "mine.json"
+    mine.write_text('{"kitchen": {"microwave": ["Open the microwave door"]}}')
+    before = _snapshot(run)
+    line = _one_error_line(capsys, generalize.main, [str(run), "--instructions", str(mine)])
+    assert f"{run / 'talar' / name} {problem}" in line, line
+    assert "rerun the command that made the run (python -m experiments." in line, line
+    assert _snapshot(run) == before
+
+
 def _orbax_run(tmp_path: Path) -> Path:
     """The agent copy with its policy as an orbax checkpoint (as a trained run keeps it), not a shipped file."""
     import orbax.checkpoint as ocp
