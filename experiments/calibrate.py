@@ -24,7 +24,7 @@ import numpy as np
 
 import envs
 from experiments.calibration_tables import report_text
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, write_output
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, run_with_args, write_output
 from experiments.recipes import get_recipe
 from talar_jax import runtime
 from talar_jax.agent import (
@@ -309,12 +309,7 @@ def calibrate(args: CalibrateArgs) -> dict:
     return record
 
 
-def run_command(argv: list[str] | None = None) -> dict:
-    """``python -m experiments.calibrate`` for Python callers: every number of the calibration."""
-    runtime.start()
-    return calibrate(parse(CalibrateArgs, argv, description=__doc__))
-
-
+run_command = run_with_args(CalibrateArgs, calibrate, __doc__, setup=runtime.start)
 main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":

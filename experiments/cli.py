@@ -106,6 +106,21 @@ def command(
     return main
 
 
+def run_with_args(
+    cls: type[T], function: Callable[[T], Any], description: str | None, setup: Callable[[], Any] | None = None
+) -> Callable[[list[str] | None], Any]:
+    """The ``run_command(argv)`` of a command that is ``function(args)`` on the dataclass ``cls`` read from the
+    command line (``setup()`` first, such as ``talar_jax.runtime.start``); it returns what ``function`` returns."""
+
+    def run_command(argv: list[str] | None = None) -> Any:
+        if setup is not None:
+            setup()
+        return function(parse(cls, argv, description=description))
+
+    run_command.__doc__ = f"``{function.__name__}`` of the command line ``argv``, for Python callers."
+    return run_command
+
+
 def checked(check: Callable[..., T], *args: Any) -> T:
     """``check(*args)``; a ``ValueError`` it raises becomes a ``UsageError`` (one ``error:`` line, status 2)."""
     try:

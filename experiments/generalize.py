@@ -27,7 +27,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, write_output
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, run_with_args, write_output
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
@@ -246,12 +246,7 @@ def generalize(args: GeneralizeArgs) -> dict:
     return result
 
 
-def run_command(argv: list[str] | None = None) -> dict:
-    """``python -m experiments.generalize`` for Python callers: the results it printed."""
-    runtime.start()
-    return generalize(parse(GeneralizeArgs, argv, description=__doc__))
-
-
+run_command = run_with_args(GeneralizeArgs, generalize, __doc__, setup=runtime.start)
 main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, parse, print_error
+from experiments.cli import POSITIONAL, UsageError, check_outputs, command, print_error, run_with_args
 from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
@@ -229,13 +229,7 @@ def write_episode_video(agent: Agent, args: InstructArgs, sentence: str, goal: i
     return {"video": str(args.video)}
 
 
-def run_command(argv: list[str] | None = None) -> dict | list[dict]:
-    """``python -m experiments.instruct`` for Python callers: the record of the sentence (a list of them for the
-    sentences of stdin). Bad input raises ``experiments.cli.UsageError``, a run that cannot answer ``AgentError``."""
-    runtime.start()
-    return instruct(parse(InstructArgs, argv, description=__doc__))
-
-
+run_command = run_with_args(InstructArgs, instruct, __doc__, setup=runtime.start)
 main = command(run_command, bad_input=(AgentError,))
 
 if __name__ == "__main__":
