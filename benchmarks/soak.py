@@ -1,4 +1,4 @@
-"""Soak test: every registered env, 10^6 random-action steps per physics backend (batched, with auto-reset).
+"""Soak test: every registered env, 10^6 random-action steps per physics engine (batched, with auto-reset).
 
     python -m benchmarks.soak [--steps 1000000] [--batch 1000] [--envs clevr kitchen] [--physics c mjx]
 
@@ -130,9 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--physics",
         nargs="+",
-        default=list(envs.PHYSICS_BACKENDS),
-        choices=envs.PHYSICS_BACKENDS,
-        help="physics backends to soak (default: all)",
+        default=list(envs.PHYSICS_NAMES),
+        choices=envs.PHYSICS_NAMES,
+        help="physics engines to soak (default: all)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the resets and random actions (default: 0)")
     parser.add_argument(

@@ -1,29 +1,24 @@
 """Reusable pure-functional MuJoCo/MJX environments (CLEVR-Robot, FrankaKitchen); no dependency on talar_jax.
 
-``make(name)`` picks the physics with ``default_backend()`` (MuJoCo C where JAX has only a CPU, MJX on an
-accelerator). On a CPU, MJX needs ``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` set before JAX starts (deep
-kinematic chains otherwise compile about twice as slowly): building MJX physics sets it while that is still possible
-and warns otherwise (``envs.runtime``). With Gymnasium installed, importing ``envs`` registers every env with it
-(``talar_jax/Clevr-v0``, ``talar_jax/Kitchen-v0``, ... : ``gymnasium_id(name)``).
+``make(name)`` picks the physics with ``default_physics()`` (MuJoCo C where JAX has only a CPU, MJX on an
+accelerator; ``make(name, physics="c")`` or ``"mjx"`` chooses). On a CPU, MJX needs
+``XLA_FLAGS=--xla_cpu_use_fusion_emitters=false`` set before JAX starts (deep kinematic chains otherwise compile about
+twice as slowly): building MJX physics sets it while that is still possible and warns otherwise (``envs.runtime``).
+
+With Gymnasium installed, importing ``envs`` registers every env with it (``talar_jax/Clevr-v0``,
+``talar_jax/Kitchen-v0``, ... : ``gymnasium_id(name)``); ``gymnasium.make("envs:talar_jax/Kitchen-v0")`` imports
+``envs`` itself (``envs.gymnasium_registration``).
+
+An env lists its goals' names in ``env.goal_names`` and turns an id or a name into a goal id with ``env.goal_id``.
 """
 
+import warnings
+
 from envs.base import ActionSpec, Env, EnvConfig, State
-from envs.goals import resolve_goal
-from envs.instructions import InstructionFormat
-from envs.physics import PHYSICS_BACKENDS, CPhysics, MjxPhysics, Physics, PhysicsState, default_backend, make_physics
-from envs.registry import (
-    get_default_config,
-    goal_names,
-    gymnasium_id,
-    instruction_envs,
-    instruction_format,
-    make,
-    model_fingerprint,
-    register_environment,
-    register_instruction_format,
-    register_with_gymnasium,
-    registered_names,
-)
+from envs.gymnasium_registration import gymnasium_id, register_with_gymnasium
+from envs.instructions import InstructionFormat, instruction_envs, instruction_format, register_instruction_format
+from envs.physics import PHYSICS_NAMES, CPhysics, MjxPhysics, Physics, PhysicsState, default_physics, make_physics
+from envs.registry import get_default_config, make, model_fingerprint, register_environment, registered_names
 from envs.wrappers import (
     AutoResetWrapper,
     EpisodeWrapper,
@@ -44,21 +39,32 @@ ALL_ENVS: tuple[str, ...] = registered_names()
 register_with_gymnasium()
 
 _GYMNASIUM_ADAPTERS = ("to_gymnasium", "to_gymnasium_vector")
+_DEPRECATED = {  # old name -> (module, its name there, what to use instead)
+    "PHYSICS_BACKENDS": ("envs.physics", "PHYSICS_NAMES", "envs.PHYSICS_NAMES"),
+    "default_backend": ("envs.physics", "default_physics", "envs.default_physics()"),
+    "goal_names": ("envs.registry", "goal_names", None),  # None: the function warns when called
+    "resolve_goal": ("envs.goals", "resolve_goal", "env.goal_id(goal)"),
+}
 
 
 def __getattr__(name: str):
     """``to_gymnasium`` / ``to_gymnasium_vector`` from ``envs.gymnasium_adapter``, imported (with Gymnasium, the
-    optional extra ``.[gymnasium]``) on first use only."""
-    if name in _GYMNASIUM_ADAPTERS:
-        from envs import gymnasium_adapter
+    optional extra ``.[gymnasium]``) on first use only; and the deprecated names, with a warning."""
+    import importlib
 
-        return getattr(gymnasium_adapter, name)
+    if name in _GYMNASIUM_ADAPTERS:
+        return getattr(importlib.import_module("envs.gymnasium_adapter"), name)
+    if name in _DEPRECATED:
+        module, attribute, instead = _DEPRECATED[name]
+        if instead is not None:
+            warnings.warn(f"envs.{name} is deprecated; use {instead}", DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(module), attribute)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = [
     "ALL_ENVS",
-    "PHYSICS_BACKENDS",
+    "PHYSICS_NAMES",
     "ActionSpec",
     "AutoResetWrapper",
     "CPhysics",
@@ -72,9 +78,8 @@ __all__ = [
     "State",
     "VmapWrapper",
     "Wrapper",
-    "default_backend",
+    "default_physics",
     "get_default_config",
-    "goal_names",
     "gymnasium_id",
     "instruction_envs",
     "instruction_format",
@@ -85,7 +90,6 @@ __all__ = [
     "register_instruction_format",
     "register_with_gymnasium",
     "registered_names",
-    "resolve_goal",
     "to_gymnasium",
     "to_gymnasium_vector",
     "wrap_for_brax_training",

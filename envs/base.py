@@ -10,6 +10,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import numbers
+import warnings
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -20,7 +21,7 @@ import numpy as np
 from flax import struct
 
 from envs.goals import describe_valid_goals, resolve_goal
-from envs.physics import Physics, PhysicsState, default_backend, make_physics
+from envs.physics import Physics, PhysicsState, default_physics, make_physics
 
 
 @struct.dataclass
@@ -28,7 +29,7 @@ class State:
     """One environment state (a pytree; batch it with ``jax.vmap``).
 
     Attributes:
-        data: physics state (``PhysicsState``: qpos, qvel, time), the same type for both backends.
+        data: physics state (``PhysicsState``: qpos, qvel, time), the same type for both physics engines.
         obs: observation, shape (observation_size,).
         reward: scalar float.
         done: scalar float, 1.0 when the episode *terminated* (success/failure). Time limits are the
@@ -119,14 +120,23 @@ class Env(abc.ABC):
     }
     """Free camera of ``render`` (``lookat``, ``distance``, ``azimuth``, ``elevation``)."""
 
+    def __init_subclass__(cls, **kwargs: Any):
+        super().__init_subclass__(**kwargs)
+        if "goal_names_of" in cls.__dict__:
+            warnings.warn(
+                f"{cls.__name__}.goal_names_of is deprecated: override the goal_names property instead",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+
     def __init__(self, config: EnvConfig | None = None, physics: str | None = None):
-        """``physics``: ``"mjx"``, ``"c"``, or None for ``envs.default_backend()`` (C on a CPU, MJX on an
+        """``physics``: ``"mjx"``, ``"c"``, or None for ``envs.default_physics()`` (C on a CPU, MJX on an
         accelerator)."""
         self.config = config if config is not None else self.config_class()
         if not isinstance(self.config, self.config_class):
             raise TypeError(f"{type(self).__name__} expects a {self.config_class.__name__}, got {type(self.config)}")
         self.mj_model = self.load_model()
-        self.physics: Physics = make_physics(default_backend() if physics is None else physics, self.mj_model)
+        self.physics: Physics = make_physics(default_physics() if physics is None else physics, self.mj_model)
 
     def load_model(self) -> mujoco.MjModel:
         """Compiles the env's MJCF (override to edit the spec before compiling)."""
@@ -138,13 +148,14 @@ class Env(abc.ABC):
         """Samples an initial state and a task (the task of goal ``goal`` when given, for envs with goal ids).
 
         ``goal`` is a goal id (an int or an integer array) or a goal name (``goal_names``). Implementations pass it
-        through ``check_goal`` first: a concrete goal out of range raises ``ValueError``; a traced one (inside
-        ``jit`` or ``vmap``) cannot be checked and must be kept in [0, num_goals) by the caller.
+        through ``goal_id`` first: a concrete goal out of range raises ``ValueError``. A traced one (an argument of
+        a ``jit``-ed or ``vmap``-ed reset) has no value while tracing; implementations return a state whose ``obs``
+        and ``reward`` are NaN when it lies out of range (``goal_out_of_range`` and ``flag_out_of_range``).
         """
 
     @abc.abstractmethod
     def step(self, state: State, action: jax.Array) -> State:
-        """Applies ``action`` and returns the next state."""
+        """Applies ``action`` and returns the next state (see ``check_action`` for what is checked where)."""
 
     def render(self, qpos: np.ndarray, width: int = 320, height: int = 240) -> list[np.ndarray]:
         """(T, nq) physics positions (e.g. ``state.data.qpos`` along an episode) -> T RGB frames (uint8).
@@ -167,38 +178,52 @@ class Env(abc.ABC):
     def num_goals(self) -> int: ...
 
     # --- goals --------------------------------------------------------------------------------------
-    @classmethod
-    def goal_names_of(cls, config: EnvConfig) -> tuple[str, ...]:
-        """The name of each goal id of an env with ``config`` (``num_goals`` of them), or () when its goals have
-        ids only. A classmethod so that names resolve without building the env (``envs.goal_names``)."""
-        return ()
-
     @property
     def goal_names(self) -> tuple[str, ...]:
-        """The name of each goal id (what ``goal_id``, ``reset`` and the Gymnasium adapters accept besides ids)."""
+        """The name of each goal id (``num_goals`` of them), or () when the env's goals have ids only: what
+        ``goal_id``, ``reset`` and the Gymnasium adapters accept besides ids. Envs with names override it."""
         return type(self).goal_names_of(self.config)
 
-    def goal_id(self, goal: int | str) -> int:
-        """The goal id of an id or a goal name (``envs.goals.resolve_goal``), or one ``ValueError`` line."""
-        return resolve_goal(goal, self.goal_names, self.num_goals, type(self).__name__)
+    @classmethod
+    def goal_names_of(cls, config: EnvConfig) -> tuple[str, ...]:
+        """Deprecated: ``goal_names`` calls it for subclasses that still define it (with a warning at definition)."""
+        return ()
 
-    def check_goal(self, goal: jax.Array | int | str | None) -> jax.Array | int | None:
-        """``reset``'s goal, checked when it is concrete: None stays None, an int or a name becomes its goal id, a
-        concrete integer array is returned as is once every entry lies in [0, num_goals). A traced goal (inside
-        ``jit``/``vmap``) is returned untouched: its value is unknown while tracing, so nothing is added to the
-        compiled program."""
+    def goal_id(self, goal: jax.Array | int | str | None) -> jax.Array | int | None:
+        """The goal id of ``goal``, checked when it has a value: the one way to turn what a person or a program
+        gives as a goal into an id (``reset`` calls it).
+
+        An int, a string of digits or a goal name (``goal_names``; case, spaces, ``_`` and ``-`` do not matter)
+        becomes an int; a concrete integer array is returned as is once every entry lies in [0, num_goals); None
+        stays None. Anything else raises one ``ValueError`` line naming the valid ids and names. A traced goal
+        (inside ``jit``/``vmap``) is returned untouched: its value is unknown while tracing, so ``reset`` flags it
+        in the state it returns instead (``goal_out_of_range``).
+        """
         if goal is None or isinstance(goal, jax.core.Tracer):
             return goal
+        where = type(self).__name__
         if isinstance(goal, str | numbers.Integral):
-            return self.goal_id(goal)
+            return resolve_goal(goal, self.goal_names, self.num_goals, where)
         array = np.asarray(goal)
         if not np.issubdtype(array.dtype, np.integer):
             valid = describe_valid_goals(self.goal_names, self.num_goals)
-            raise ValueError(f"goal of dtype {array.dtype} for {type(self).__name__} is not a goal id; give {valid}")
+            raise ValueError(f"goal of dtype {array.dtype} for {where} is not a goal id; give {valid}")
         outside = array[(array < 0) | (array >= self.num_goals)]
         if outside.size:
-            self.goal_id(int(outside.flat[0]))  # raises the out-of-range error
+            resolve_goal(int(outside.flat[0]), self.goal_names, self.num_goals, where)  # raises the range error
         return goal
+
+    def check_goal(self, goal: jax.Array | int | str | None) -> jax.Array | int | None:
+        """Deprecated name of ``goal_id``."""
+        warnings.warn("Env.check_goal is deprecated; use Env.goal_id", DeprecationWarning, stacklevel=2)
+        return self.goal_id(goal)
+
+    def goal_out_of_range(self, goal: jax.Array | int | None) -> jax.Array | None:
+        """For a traced goal id, whether it lies outside [0, num_goals) (a traced bool); None for a goal with a
+        value (``goal_id`` checked it) or no goal, so nothing is added to the compiled program then."""
+        if not isinstance(goal, jax.core.Tracer):
+            return None
+        return (goal < 0) | (goal >= self.num_goals)
 
     @property
     @abc.abstractmethod
@@ -236,6 +261,8 @@ class Env(abc.ABC):
 
     @property
     def backend(self) -> str:
+        """Deprecated: the physics' name is ``env.physics.name``."""
+        warnings.warn("Env.backend is deprecated; use env.physics.name", DeprecationWarning, stacklevel=2)
         return self.physics.name
 
     @property
@@ -247,8 +274,9 @@ class Env(abc.ABC):
         """Validates an action's shape/dtype (and value, when concrete); returns it in canonical form.
 
         Discrete envs return an int32 scalar; continuous envs a float32 vector clipped to [low, high].
-        Raises ``ValueError``/``TypeError`` with the expected form. Values can only be checked outside
-        ``jit``; inside, out-of-range integers are clipped to the valid range.
+        Raises ``ValueError``/``TypeError`` with the expected form. A concrete discrete action out of range raises
+        too. A traced one (an argument of a ``jit``-ed step) has no value while tracing: it is clipped into range
+        here, and discrete envs flag it in the state ``step`` returns (``action_out_of_range``).
         """
         spec = self.action_spec
         action = jnp.asarray(action)
@@ -274,3 +302,26 @@ class Env(abc.ABC):
         if not isinstance(action, jax.core.Tracer) and not bool(jnp.all(jnp.isfinite(action))):
             raise ValueError(f"action contains NaN or inf: {np.asarray(action)}")
         return jnp.clip(action.astype(jnp.float32), spec.low, spec.high)
+
+    def action_out_of_range(self, action: jax.Array) -> jax.Array | None:
+        """For a traced integer action of a discrete env, whether it lies outside [0, size) (a traced bool); None
+        otherwise (a concrete action is checked by ``check_action``, scores are argmax-ed, continuous actions are
+        clipped by definition), so nothing is added to the compiled program then."""
+        spec = self.action_spec
+        if spec.kind != "discrete" or not isinstance(action, jax.core.Tracer):
+            return None
+        if not jnp.issubdtype(action.dtype, jnp.integer):
+            return None
+        return (action < 0) | (action >= spec.size)
+
+    @staticmethod
+    def flag_out_of_range(state: State, out_of_range: jax.Array | None) -> State:
+        """``state`` with NaN ``obs`` and ``reward`` where ``out_of_range`` holds, so that a goal or action that
+        could not be checked while tracing cannot pass unnoticed through a training loop; ``state`` itself when
+        ``out_of_range`` is None. Two selects: the physics and every in-range value are untouched."""
+        if out_of_range is None:
+            return state
+        nan = jnp.float32(jnp.nan)
+        return state.replace(
+            obs=jnp.where(out_of_range, nan, state.obs), reward=jnp.where(out_of_range, nan, state.reward)
+        )

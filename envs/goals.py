@@ -1,8 +1,9 @@
 """Goal ids from what a person types: an id (an int, or its digits as a string) or a goal's name.
 
-One resolver for every place that takes a goal from a user: ``Env.goal_id`` / ``Env.reset``, the Gymnasium adapters
-and their registered ids, and command lines (``resolve_goal(text, envs.goal_names(env))``). Names match without
-regard to case, surrounding spaces, or ``_`` / ``-`` written for a space (``"Top_Burner"`` is ``"top burner"``).
+The rule behind ``Env.goal_id``, the one public way to turn a goal into an id (``Env.reset`` and the Gymnasium
+adapters call it; ``env.goal_names`` lists the names). Names match without regard to case, surrounding spaces, or
+``_`` / ``-`` written for a space (``"Top_Burner"`` is ``"top burner"``). ``resolve_goal`` serves ``Env.goal_id`` and
+env modules that name their goals before any env is built (the kitchen's ``tasks.task_id``).
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from envs.base import Env, State
+from envs.goals import describe_valid_goals
 from envs.registry import make
 
 _NO_GOAL = -1  # "the env samples the goal" in the jitted reset's goal argument
@@ -45,9 +46,14 @@ def _build_env(name_or_env: str | Env, physics: str | None, options: dict[str, A
     return name_or_env
 
 
-def _check_goal(env: Env, goal: Any) -> int:
-    """The goal id of an id or a goal name (``env.goal_id``), or ``_NO_GOAL`` for None."""
-    return _NO_GOAL if goal is None else env.goal_id(goal)
+def _goal_arg(env: Env, goal: Any) -> int:
+    """The goal id of one id or goal name (``env.goal_id``), or ``_NO_GOAL`` for None."""
+    if goal is None:
+        return _NO_GOAL
+    if not isinstance(goal, str) and np.ndim(goal) != 0:  # env.goal_id takes arrays of ids; an episode has one goal
+        valid = describe_valid_goals(env.goal_names, env.num_goals)
+        raise ValueError(f"goal {goal!r} for {type(env).__name__} is not a single goal; give {valid}")
+    return int(env.goal_id(goal))
 
 
 def _check_episode_length(env: Env, episode_length: int | None) -> int:
@@ -139,7 +145,7 @@ class GymnasiumEnv(gym.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.jax_env = env
-        self.goal = None if goal is None else env.goal_id(goal)
+        self.goal = None if goal is None else _goal_arg(env, goal)
         self.episode_length = _check_episode_length(env, episode_length)
         self.render_mode = render_mode
         # One env step holds the control for substeps x timestep seconds (CLEVR 0.4 s, kitchen 0.08 s).
@@ -164,7 +170,7 @@ class GymnasiumEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Starts an episode; returns (observation, info)."""
         super().reset(seed=seed)
-        goal = _check_goal(self.jax_env, _pop_goal(options, self.goal))
+        goal = _goal_arg(self.jax_env, _pop_goal(options, self.goal))
         if seed is not None or self._key is None:
             self._key = _new_key(self.np_random)
         self._key, self.state = self._reset(self._key, jnp.int32(goal))
@@ -251,7 +257,7 @@ class GymnasiumVectorEnv(VectorEnv):
         goals = [goal] * self.num_envs if one else list(goal)
         if len(goals) != self.num_envs:
             raise ValueError(f"goal has {len(goals)} entries for {self.num_envs} sub-envs")
-        return jnp.asarray([_check_goal(self.jax_env, g) for g in goals], jnp.int32)
+        return jnp.asarray([_goal_arg(self.jax_env, g) for g in goals], jnp.int32)
 
     def _info(self, metrics: dict[str, np.ndarray], goal: np.ndarray | None, mask: np.ndarray | None = None) -> dict:
         """Gymnasium's vector info: one array per key ``k`` and its mask ``_k`` (all True by default)."""
@@ -310,7 +316,7 @@ def to_gymnasium(
         name_or_env: one of ``envs.ALL_ENVS``, or an ``envs.Env`` (then ``physics`` is its own and ``options``
             must be empty).
         physics: ``"c"`` (MuJoCo's C engine, the fast choice on a CPU), ``"mjx"``, or None for
-            ``envs.default_backend()`` (C where JAX has only a CPU, MJX on an accelerator), as ``envs.make``.
+            ``envs.default_physics()`` (C where JAX has only a CPU, MJX on an accelerator), as ``envs.make``.
         render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame).
         goal: the goal of every episode: an id in [0, env.num_goals) or a goal name (``env.goal_names``, e.g.
             ``"microwave"``); None samples one per episode.

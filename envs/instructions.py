@@ -50,3 +50,30 @@ def section(data: dict, env: str, path: Path) -> dict:
     if not isinstance(found, dict):
         raise ValueError(f"instruction file {path} has no {env!r} object")
     return found
+
+
+_FORMATS: dict[str, InstructionFormat] = {}
+
+
+def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:
+    """Makes ``env`` (and the variants named in ``instruction_format.aliases``) read its instructions this way.
+
+    An env package calls it beside its ``register_environment`` calls; calling it again for ``env`` replaces the
+    format (e.g. to read another layout of instruction file).
+    """
+    _FORMATS[env] = instruction_format
+
+
+def instruction_envs() -> dict[str, str]:
+    """Every env or variant name with instructions -> the env whose instructions it uses."""
+    names = {env: env for env in _FORMATS}
+    names.update({alias: env for env, fmt in _FORMATS.items() for alias in fmt.aliases})
+    return names
+
+
+def instruction_format(env: str) -> InstructionFormat:
+    """The instruction format of an env or of one of its variants, or one clear error."""
+    names = instruction_envs()
+    if env not in names:
+        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(names))}")
+    return _FORMATS[names[env]]

@@ -1,6 +1,9 @@
-"""Two physics backends behind one functional API: pure-JAX MJX and MuJoCo's C engine via a callback.
+"""Two physics engines behind one functional API: pure-JAX MJX and MuJoCo's C engine via a callback.
 
-Both backends step the *same* compiled ``mujoco.MjModel`` and exchange the same small, backend-independent
+An env's ``physics`` is one of ``PHYSICS_NAMES`` (``envs.make(name, physics="c")``); ``env.physics`` is the ``Physics``
+object of that name. ("Backend" is left to JAX, whose ``jax.default_backend()`` names the device kind.)
+
+Both engines step the *same* compiled ``mujoco.MjModel`` and exchange the same small, engine-independent
 ``PhysicsState`` pytree, so task logic (rewards, observations, resets) is shared JAX code and only the
 physics step differs:
 
@@ -9,7 +12,7 @@ physics step differs:
   has not started yet and otherwise warns about (``envs.runtime``).
 * ``CPhysics``: MuJoCo's C engine, reached through ``jax.pure_callback`` with a batched host function that
   runs ``mujoco.rollout`` (multi-threaded). The env stays jit- and vmap-able (vmap turns into one batched
-  host call), but not differentiable. On a CPU this is the fast backend.
+  host call), but not differentiable. On a CPU this is the fast physics.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import contextlib
 import io
 import os
 import threading
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -34,12 +38,13 @@ from envs.runtime import prepare_mjx
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
-PHYSICS_BACKENDS: tuple[str, ...] = ("mjx", "c")
+PHYSICS_NAMES: tuple[str, ...] = ("mjx", "c")
+"""The values of ``physics`` (``envs.make``, ``Env(config, physics)``) and the ``name`` of each ``Physics`` class."""
 
 
 @struct.dataclass
 class PhysicsState:
-    """The part of the MuJoCo state that persists between env steps (identical for both backends).
+    """The part of the MuJoCo state that persists between env steps (identical for both physics).
 
     Everything else in ``mjData`` (kinematics, contacts, constraint forces) is recomputed from these
     fields at the next physics step, so nothing is lost by not carrying it.
@@ -118,7 +123,7 @@ class CPhysics(Physics):
     def __init__(self, mj_model: mujoco.MjModel, nthread: int | None = None):
         super().__init__(mj_model)
         self.nthread = max(1, nthread if nthread is not None else (os.cpu_count() or 1))
-        # One MjData cache per backend, guarded by a lock. Not ``threading.local``: XLA runs callbacks on
+        # One MjData cache per physics object, guarded by a lock. Not ``threading.local``: XLA runs callbacks on
         # foreign threads whose Python thread state (and its locals, hence MjData) is torn down after each
         # callback, which segfaulted (seen with the kitchen model).
         self._lock = threading.Lock()
@@ -203,17 +208,28 @@ class CPhysics(Physics):
         return PhysicsState(qpos=qpos, qvel=qvel, time=time)
 
 
-def make_physics(backend: str, mj_model: mujoco.MjModel) -> Physics:
-    """Builds the named physics backend (``"mjx"`` or ``"c"``) for ``mj_model``."""
-    if backend == "mjx":
+def make_physics(name: str, mj_model: mujoco.MjModel) -> Physics:
+    """Builds the named physics (``"mjx"`` or ``"c"``, see ``PHYSICS_NAMES``) for ``mj_model``."""
+    if name == "mjx":
         return MjxPhysics(mj_model)
-    if backend == "c":
+    if name == "c":
         return CPhysics(mj_model)
-    raise ValueError(f"unknown physics backend {backend!r}; choose one of {', '.join(PHYSICS_BACKENDS)}")
+    raise ValueError(f"unknown physics {name!r}; choose one of {', '.join(PHYSICS_NAMES)}")
 
 
-def default_backend() -> str:
-    """The faster backend for the current default JAX device: MJX on GPU/TPU, MuJoCo C on CPU. The one rule behind
+def default_physics() -> str:
+    """The faster physics for the current default JAX device: MJX on GPU/TPU, MuJoCo C on CPU. The one rule behind
     every default choice of physics (``envs.make``, the Gymnasium adapters, the experiment commands); asking it
     starts JAX's backends."""
     return "c" if jax.default_backend() == "cpu" else "mjx"
+
+
+_RENAMED = {"PHYSICS_BACKENDS": "PHYSICS_NAMES", "default_backend": "default_physics"}
+
+
+def __getattr__(name: str):
+    """The names these had before "physics" became the one word for the choice of engine, with a warning."""
+    if name in _RENAMED:
+        warnings.warn(f"envs.physics.{name} is deprecated; use {_RENAMED[name]}", DeprecationWarning, stacklevel=2)
+        return globals()[_RENAMED[name]]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

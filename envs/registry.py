@@ -1,19 +1,22 @@
-"""The one registry of environments: names -> (env class, config overrides), and how their instructions are read."""
+"""The one registry of environments: names -> (env class, config overrides).
+
+How an env's instructions are read is registered in ``envs.instructions``, and the Gymnasium ids in
+``envs.gymnasium_registration``.
+"""
 
 from __future__ import annotations
 
 import functools
 import hashlib
+import warnings
+from collections.abc import Callable
 from typing import Any
 
 from envs.base import Env, EnvConfig, replace_config
-from envs.instructions import InstructionFormat
-from envs.physics import PHYSICS_BACKENDS
+from envs.physics import PHYSICS_NAMES
 
 _REGISTRY: dict[str, tuple[type[Env], dict[str, Any]]] = {}
-_INSTRUCTION_FORMATS: dict[str, InstructionFormat] = {}
-GYMNASIUM_NAMESPACE = "talar_jax"
-_gymnasium_registry: Any = None  # gymnasium's registry module once register_with_gymnasium found it
+_LISTENERS: list[Callable[[str], None]] = []  # called with each name registered (the Gymnasium registration)
 
 
 def register_environment(name: str, env_class: type[Env], **config_overrides: Any) -> None:
@@ -23,42 +26,14 @@ def register_environment(name: str, env_class: type[Env], **config_overrides: An
         raise ValueError(f"environment {name!r} is already registered")
     replace_config(env_class.config_class(), config_overrides)  # fail early on bad overrides
     _REGISTRY[name] = (env_class, dict(config_overrides))
-    if _gymnasium_registry is not None:
-        _register_gymnasium_id(name)
+    for listener in _LISTENERS:
+        listener(name)
 
 
-def gymnasium_id(name: str) -> str:
-    """The Gymnasium id of a registered env: ``"clevr-arrangement"`` -> ``"talar_jax/ClevrArrangement-v0"``."""
-    return f"{GYMNASIUM_NAMESPACE}/{''.join(part.capitalize() for part in name.split('-'))}-v0"
-
-
-def _register_gymnasium_id(name: str) -> None:
-    env_id = gymnasium_id(name)
-    if env_id in _gymnasium_registry.registry:  # e.g. envs reloaded: Gymnasium would warn about overriding it
-        return
-    # Entry points are strings, so the adapters (and Gymnasium's vector module) load at the first gymnasium.make.
-    _gymnasium_registry.register(
-        id=env_id,
-        entry_point="envs.gymnasium_adapter:to_gymnasium",
-        vector_entry_point="envs.gymnasium_adapter:to_gymnasium_vector",
-        kwargs={"name_or_env": name},
-    )
-
-
-def register_with_gymnasium() -> bool:
-    """Registers every env with Gymnasium (``gymnasium.make(gymnasium_id(name), **options)`` builds
-    ``envs.to_gymnasium(name, **options)``; ``gymnasium.make_vec`` the vector adapter), and every env registered
-    later. ``import envs`` calls it; without Gymnasium (an optional dependency) it does nothing and returns False.
-    """
-    global _gymnasium_registry
-    try:
-        from gymnasium.envs import registration
-    except ImportError:
-        return False
-    _gymnasium_registry = registration
-    for name in _REGISTRY:
-        _register_gymnasium_id(name)
-    return True
+def on_register(listener: Callable[[str], None]) -> None:
+    """Calls ``listener(name)`` for every env registered from now on (once per listener)."""
+    if listener not in _LISTENERS:
+        _LISTENERS.append(listener)
 
 
 def registered_names() -> tuple[str, ...]:
@@ -92,44 +67,39 @@ def make(name: str, *, physics: str | None = None, **overrides: Any) -> Env:
         name: one of ``envs.ALL_ENVS``.
         physics: ``"mjx"`` (pure JAX: jit-, vmap- and grad-able, the fast choice on a GPU/TPU) or ``"c"`` (MuJoCo's
             C engine through a batched callback: the fast choice on a CPU). None (default) asks
-            ``envs.default_backend()``, the rule the experiment commands and the Gymnasium adapters follow too:
+            ``envs.default_physics()``, the rule the experiment commands and the Gymnasium adapters follow too:
             C where JAX has only a CPU, MJX on an accelerator. An explicit value always wins; MJX on a CPU sets
             (or, once JAX has started, warns about) the XLA flag it needs (``envs.runtime``).
         **overrides: fields of the env's config (see ``get_default_config(name)``).
     """
     env_class, _ = _lookup(name)
-    if physics is not None and physics not in PHYSICS_BACKENDS:
-        raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(PHYSICS_BACKENDS)}")
+    if physics is not None and physics not in PHYSICS_NAMES:
+        raise ValueError(f"unknown physics {physics!r}; choose one of {', '.join(PHYSICS_NAMES)}")
     config = replace_config(get_default_config(name), overrides)
     return env_class(config, physics=physics)
 
 
 def goal_names(name: str, **overrides: Any) -> tuple[str, ...]:
-    """The name of each goal id of a registered env with ``overrides`` (``Env.goal_names``, without building the
-    env); pair with ``envs.resolve_goal`` to read a goal a person typed."""
-    env_class, _ = _lookup(name)
-    return env_class.goal_names_of(replace_config(get_default_config(name), overrides))
+    """Deprecated: ``envs.make(name, **overrides).goal_names``."""
+    warnings.warn("envs.goal_names(name) is deprecated; use envs.make(name).goal_names", DeprecationWarning, 2)
+    return make(name, physics="c", **overrides).goal_names
 
 
-def register_instruction_format(env: str, instruction_format: InstructionFormat) -> None:
-    """Makes ``env`` (and the variants named in ``instruction_format.aliases``) read its instructions this way.
-
-    An env package calls it beside its ``register_environment`` calls; calling it again for ``env`` replaces the
-    format (e.g. to read another layout of instruction file).
-    """
-    _INSTRUCTION_FORMATS[env] = instruction_format
-
-
-def instruction_envs() -> dict[str, str]:
-    """Every env or variant name with instructions -> the env whose instructions it uses."""
-    names = {env: env for env in _INSTRUCTION_FORMATS}
-    names.update({alias: env for env, fmt in _INSTRUCTION_FORMATS.items() for alias in fmt.aliases})
-    return names
+_MOVED = {
+    "register_instruction_format": "envs.instructions",
+    "instruction_envs": "envs.instructions",
+    "instruction_format": "envs.instructions",
+    "GYMNASIUM_NAMESPACE": "envs.gymnasium_registration",
+    "gymnasium_id": "envs.gymnasium_registration",
+    "register_with_gymnasium": "envs.gymnasium_registration",
+}
 
 
-def instruction_format(env: str) -> InstructionFormat:
-    """The instruction format of an env or of one of its variants, or one clear error."""
-    names = instruction_envs()
-    if env not in names:
-        raise ValueError(f"unknown env {env!r} for instructions; valid: {', '.join(sorted(names))}")
-    return _INSTRUCTION_FORMATS[names[env]]
+def __getattr__(name: str):
+    """Names that moved to modules of their own, with a warning (``envs.<name>`` still has each of them)."""
+    if name in _MOVED:
+        import importlib
+
+        warnings.warn(f"envs.registry.{name} moved to {_MOVED[name]}", DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -54,7 +54,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--timesteps", type=int, default=5_000_000, help="env steps of training")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--physics", choices=envs.PHYSICS_BACKENDS, default="c")
+    parser.add_argument("--physics", choices=envs.PHYSICS_NAMES, default="c")
     parser.add_argument("--out", type=Path, default=Path("results/envs-library/brax-ppo-clevr.json"))
     args = parser.parse_args(argv)
     if args.timesteps < 100_000:

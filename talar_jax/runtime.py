@@ -86,7 +86,7 @@ def configure(compile_cache: bool = True) -> None:
     """Sets the XLA flag and log level (when JAX has not started yet), the compile cache and line-buffered stdout.
 
     Safe to call again. JAX does not cache programs that call back into Python, which includes every program stepping
-    the C physics backend: those compile again in each process.
+    the C physics: those compile again in each process.
     """
     _quiet_xla_log()
     _select_mujoco_gl()

@@ -44,11 +44,11 @@ def kitchen_run(tmp_path_factory):
 def point_env_registered(monkeypatch):
     """The point env of tests/point_env.py registered as a third env package would be, removed afterwards."""
     import envs
-    from envs import registry
+    from envs import instructions, registry
     from tests import point_env
 
     monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
-    monkeypatch.setattr(registry, "_INSTRUCTION_FORMATS", dict(registry._INSTRUCTION_FORMATS))
+    monkeypatch.setattr(instructions, "_FORMATS", dict(instructions._FORMATS))
     point_env.register()
     yield envs
     monkeypatch.undo()

@@ -16,9 +16,9 @@ import numpy as np
 from flax import struct
 
 from envs.base import ActionSpec, Env, EnvConfig, State
-from envs.instructions import InstructionFormat, SentencesByGoal, section, string_list
+from envs.instructions import InstructionFormat, SentencesByGoal, register_instruction_format, section, string_list
 from envs.physics import PhysicsState
-from envs.registry import register_environment, register_instruction_format
+from envs.registry import register_environment
 
 GOALS = np.array([[0.5, 0.5], [-0.5, 0.5], [-0.5, -0.5], [0.5, -0.5]], np.float32)  # (4, 2)
 MOVES = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], np.float32)  # (5, 2) discrete actions

@@ -25,6 +25,15 @@ def random_actions(spec: envs.ActionSpec, key: jax.Array, shape: tuple[int, ...]
     return jax.random.uniform(key, shape + (spec.size,), minval=spec.low, maxval=spec.high)
 
 
+def assert_close(a, b):
+    """Equal arrays, floats up to the rounding of a compiled against an eager computation."""
+    a, b = np.asarray(a), np.asarray(b)
+    if np.issubdtype(a.dtype, np.floating):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+    else:
+        np.testing.assert_array_equal(a, b)
+
+
 class Compiled:
     """An env on both backends and its jitted functions, built once per env name (module scope)."""
 
@@ -191,10 +200,10 @@ def test_kitchen_hinge_cabinet_is_a_seventh_goal():
 def test_goal_names_resolve_to_their_ids(compiled):
     env = compiled.c_env
     names = env.goal_names
-    assert len(names) == env.num_goals and envs.goal_names(compiled.name) == names
+    assert len(names) == env.num_goals
     for goal_id, name in enumerate(names):
         assert env.goal_id(name) == goal_id == env.goal_id(f"  {name.upper().replace(' ', '_')} ")
-        assert envs.resolve_goal(name, names) == goal_id == envs.resolve_goal(str(goal_id), names)
+        assert env.goal_id(str(goal_id)) == goal_id
     last = env.num_goals - 1
     by_name, by_id = env.reset(jax.random.key(0), goal=names[last]), env.reset(jax.random.key(0), goal=last)
     jax.tree.map(np.testing.assert_array_equal, by_name, by_id)
@@ -209,21 +218,92 @@ def test_reset_rejects_an_out_of_range_goal_eagerly(compiled):
     with pytest.raises(ValueError, match="unknown goal 'no such goal'"):
         env.reset(jax.random.key(0), goal="no such goal")
     assert int(env.reset(jax.random.key(0), goal=jnp.int32(n - 1)).task.goal) in (n - 1, -1)  # -1: a fixed task
-    # Traced goals cannot be checked, and checking adds nothing to the traced program.
-    key, goal = jax.random.key(0), jnp.int32(n - 1)
-    checked = str(jax.make_jaxpr(env.reset)(key, goal))
-    unchecked_env = envs.make(compiled.name, physics="c")
-    unchecked_env.check_goal = lambda goal: goal
-    assert checked == str(jax.make_jaxpr(unchecked_env.reset)(key, goal))
-    jax.jit(jax.vmap(env.reset))(jax.random.split(key, 3), jnp.int32([0, n - 1, 0]))
+    # VmapWrapper checks a batch of goals before tracing it
+    with pytest.raises(ValueError, match=rf"goal {n} is out of range"):
+        envs.VmapWrapper(env).reset(jax.random.split(jax.random.key(0), 2), np.array([0, n]))
+
+
+def test_a_traced_goal_out_of_range_gives_a_nan_state(compiled):
+    """Inside jit a goal has no value while tracing: an out-of-range one makes the state's obs and reward NaN,
+    an in-range one gives the state an eager reset gives (up to the compiler's float rounding)."""
+    env, n = compiled.c_env, compiled.c_env.num_goals
+    reset = jax.jit(env.reset)
+    for bad in (n, -1, 999):
+        state = reset(jax.random.key(0), bad)
+        assert np.isnan(np.asarray(state.obs)).all() and np.isnan(float(state.reward)), bad
+    for good in range(n):
+        state = reset(jax.random.key(0), good)
+        assert np.isfinite(np.asarray(state.obs)).all()
+        jax.tree.map(assert_close, state, env.reset(jax.random.key(0), good))
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3), jnp.int32([0, n, 0]))
+    assert np.isnan(np.asarray(states.obs)).any(axis=1).tolist() == [False, True, False]
+
+
+def test_a_traced_discrete_action_out_of_range_gives_a_nan_state(compiled):
+    env, spec = compiled.c_env, compiled.c_env.action_spec
+    if spec.kind != "discrete":  # continuous actions are clipped to their bounds by definition
+        pytest.skip("a continuous env")
+    state = compiled.reset(jax.random.key(0))
+    for bad in (spec.size, -1):
+        stepped = compiled.step(state, jnp.int32(bad))
+        assert np.isnan(np.asarray(stepped.obs)).all() and np.isnan(float(stepped.reward)), bad
+    for good in (0, spec.size - 1):
+        stepped = compiled.step(state, jnp.int32(good))
+        assert np.isfinite(np.asarray(stepped.obs)).all()
+        jax.tree.map(assert_close, stepped, env.step(state, good))
+
+
+# --- wrappers are envs ------------------------------------------------------------------------------------------------
+def test_a_wrapped_env_is_an_env_and_its_reset_passes_the_goal_on(compiled):
+    env = compiled.c_env
+    last = env.num_goals - 1
+    wrapped = envs.wrap_for_brax_training(env, episode_length=5)  # VmapWrapper(metrics(AutoReset(Episode(env))))
+    assert isinstance(wrapped, envs.Env) and wrapped.unwrapped is env
+    for member in ("num_goals", "goal_names", "action_spec", "observation_size", "render_camera", "config_class"):
+        assert getattr(wrapped, member) == getattr(env, member), member
+    assert wrapped.episode_length == 5 and wrapped.goal_id(env.goal_names[last]) == last
+    keys = jax.random.split(jax.random.key(0), 2)
+    expected = jax.vmap(lambda key: env.reset(jax.random.split(key)[1], last))(keys)
+    for goal in (last, env.goal_names[last], np.array([last, last])):
+        state = wrapped.reset(keys, goal=goal)
+        np.testing.assert_array_equal(state.obs, expected.obs)
+        np.testing.assert_array_equal(state.task.goal, expected.task.goal)
+    with pytest.raises(ValueError, match="out of range"):
+        wrapped.reset(keys, goal=env.num_goals)
+
+
+def test_the_old_names_still_work_with_a_deprecation_warning():
+    env = envs.make("kitchen", physics="c")
+    with pytest.warns(DeprecationWarning, match="PHYSICS_NAMES"):
+        assert envs.PHYSICS_BACKENDS == envs.PHYSICS_NAMES
+    with pytest.warns(DeprecationWarning, match="default_physics"):
+        assert envs.default_backend() == envs.default_physics()
+    with pytest.warns(DeprecationWarning, match="physics.name"):
+        assert env.backend == "c"
+    with pytest.warns(DeprecationWarning, match="goal_names"):
+        assert envs.goal_names("kitchen") == env.goal_names
+    with pytest.warns(DeprecationWarning, match="goal_id"):
+        assert envs.resolve_goal("kettle", env.goal_names) == 1 == env.check_goal("kettle")
+    with pytest.warns(DeprecationWarning, match="envs.instructions"):
+        from envs.registry import instruction_format  # noqa: F401
+    from tests.point_env import PointEnv  # an env that names no goals of its own
+
+    with pytest.warns(DeprecationWarning, match="override the goal_names property"):
+
+        class OldStyle(PointEnv):
+            @classmethod
+            def goal_names_of(cls, config):
+                return ("north", "west", "south", "east")
+
+    assert OldStyle().goal_names == ("north", "west", "south", "east") and OldStyle().goal_id("south") == 2
 
 
 # --- default physics and the CPU XLA flag --------------------------------------------------------------------------
-def test_make_picks_the_default_backend_and_an_explicit_physics_wins(compiled):
-    assert envs.make(compiled.name).backend == envs.default_backend()
+def test_make_picks_the_default_physics_and_an_explicit_physics_wins(compiled):
+    assert envs.make(compiled.name).physics.name == envs.default_physics()
     if jax.default_backend() == "cpu":
-        assert envs.default_backend() == "c"
-    assert compiled.mjx_env.backend == "mjx" and compiled.c_env.backend == "c"
+        assert envs.default_physics() == "c"
+    assert compiled.mjx_env.physics.name == "mjx" and compiled.c_env.physics.name == "c"
 
 
 def run_fresh(code: str, xla_flags: str | None = None) -> dict:
@@ -280,7 +360,7 @@ def test_mjx_on_a_cpu_warns_once_when_jax_has_started_without_the_flag():
         "import jax.numpy as jnp\n"
         "jnp.zeros(1).block_until_ready()\n"  # JAX has started: XLA_FLAGS is no longer read
         "import envs\n"
-        "assert envs.make('clevr').backend == 'c'\n"  # the default on a CPU: no flag needed
+        "assert envs.make('clevr').physics.name == 'c'\n"  # the default on a CPU: no flag needed
         "envs.make('clevr', physics='mjx')\n"
         "envs.make('clevr-arrangement', physics='mjx')\n"
         "print(json.dumps({'flags': os.environ.get('XLA_FLAGS'),"

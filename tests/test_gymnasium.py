@@ -162,9 +162,9 @@ def test_goal_names():
         envs.to_gymnasium("kitchen", goal="hinge cabinet")
 
 
-def test_default_physics_is_the_default_backend():
-    assert single("clevr").jax_env.backend == envs.default_backend()
-    assert envs.to_gymnasium("kitchen", physics="mjx").jax_env.backend == "mjx"  # an explicit physics wins
+def test_the_physics_is_the_default_physics_unless_chosen():
+    assert single("clevr").jax_env.physics.name == envs.default_physics()
+    assert envs.to_gymnasium("kitchen", physics="mjx").jax_env.physics.name == "mjx"  # an explicit physics wins
 
 
 REGISTERED_IDS = {
@@ -189,7 +189,7 @@ def test_every_env_is_registered_with_gymnasium():
     env = gym.make("talar_jax/Kitchen-v0", goal="microwave")
     assert env.spec.id == "talar_jax/Kitchen-v0"
     assert env.spec.kwargs == {"name_or_env": "kitchen", "goal": "microwave"}
-    assert isinstance(env.unwrapped, GymnasiumEnv) and env.unwrapped.jax_env.backend == envs.default_backend()
+    assert isinstance(env.unwrapped, GymnasiumEnv) and env.unwrapped.jax_env.physics.name == envs.default_physics()
     obs, info = env.reset(seed=0)
     assert obs.shape == (30,) and info["goal"] == 0
     arrangement = gym.make("talar_jax/ClevrArrangement-v0", episode_length=3)

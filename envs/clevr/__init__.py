@@ -2,7 +2,8 @@
 
 from envs.clevr.env import ClevrConfig, ClevrEnv, ClevrTask
 from envs.clevr.instructions import INSTRUCTION_FORMAT
-from envs.registry import register_environment, register_instruction_format
+from envs.instructions import register_instruction_format
+from envs.registry import register_environment
 
 register_environment("clevr", ClevrEnv)
 register_environment("clevr-arrangement", ClevrEnv, task="arrangement")

@@ -133,11 +133,11 @@ class ClevrEnv(Env):
         """80 push goals; the arrangement task is a single fixed goal."""
         return 1 if self._arrangement else tasks.NUM_GOALS
 
-    @classmethod
-    def goal_names_of(cls, config: ClevrConfig) -> tuple[str, ...]:
+    @property
+    def goal_names(self) -> tuple[str, ...]:
         """The 80 goals' descriptions (``'red ball in front of the blue ball'``); ``('arrangement',)`` for the
         arrangement task."""
-        return ("arrangement",) if config.task == "arrangement" else tasks.GOAL_NAMES
+        return ("arrangement",) if self._arrangement else tasks.GOAL_NAMES
 
     @property
     def state_observation_size(self) -> int:
@@ -164,7 +164,8 @@ class ClevrEnv(Env):
         """A fresh scene and a goal: uniform over the goals not already met, or ``goal`` (an id or a name; see
         ``Env.reset``) when given: the balls are then re-drawn, up to 16 times, until that goal does not already
         hold. The arrangement task has one fixed goal and ignores ``goal`` once checked."""
-        goal = self.check_goal(goal)
+        goal = self.goal_id(goal)
+        out_of_range = self.goal_out_of_range(goal)
         rng_balls, rng_goal = jax.random.split(rng)
         ball_xy = tasks.sample_ball_positions(rng_balls)
         if goal is not None and not self._arrangement:
@@ -196,9 +197,11 @@ class ClevrEnv(Env):
         zero = jnp.zeros((), jnp.float32)
         metrics = self._metrics(ball_xy, task, zero, zero)
         obs = self.observe_goal(ball_xy.reshape(-1), task)
-        return State(data=data, obs=obs, reward=zero, done=zero, metrics=metrics, info={}, task=task)
+        state = State(data=data, obs=obs, reward=zero, done=zero, metrics=metrics, info={}, task=task)
+        return self.flag_out_of_range(state, out_of_range)
 
     def step(self, state: State, action: jax.Array) -> State:
+        out_of_range = self.action_out_of_range(action)
         action = self.push_action(state, action)
         ball, direction = action // tasks.NUM_DIRECTIONS, action % tasks.NUM_DIRECTIONS
         force = jnp.asarray(tasks.PUSH_DIRECTIONS)[direction]
@@ -230,7 +233,8 @@ class ClevrEnv(Env):
         metrics = self._metrics(ball_xy, task, success, failure)
         done = jnp.maximum(success, failure)
         obs = self.observe_goal(ball_xy.reshape(-1), task)
-        return state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
+        stepped = state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
+        return self.flag_out_of_range(stepped, out_of_range)
 
     def _metrics(self, ball_xy: jax.Array, task: ClevrTask, success: jax.Array, failure: jax.Array) -> dict:
         if self._arrangement:

@@ -76,11 +76,11 @@ class KitchenConfig(EnvConfig):
     """Target robot postures of the single-task reward's posture term: 'talar' (TALAR's hard-coded postures, the
     original reward), 'scripted' (the scripted controller's posture at success, with the hand at the object) or
     'grasp' (as 'scripted', with the microwave's target grasping the closed door's handle, not past it).
-    Measured (results/kitchen-diagnosis): with 'talar', parking the arm at the top-burner target never touches the
-    knob and is worth about as much as succeeding; goal-conditioned PPO, 573k steps, 3 seeds: top burner 0 -> 72 %,
-    light switch 34 -> 100 %, bottom burner 38 -> 82 % with 'scripted'. The microwave's 'scripted' target leaves
-    the fingertips 0.28 m from the closed door's handle; 'grasp' with ``stillness='true'`` opened it on 8 of 8
-    probe seeds against 3 of 8 (results/kitchen-seeds/). TALAR's experiment commands use 'grasp'."""
+    Measured (results/recipe-measurements/kitchen-diagnosis): with 'talar', parking the arm at the top-burner target
+    never touches the knob and is worth about as much as succeeding; goal-conditioned PPO, 573k steps, 3 seeds: top
+    burner 0 -> 72 %, light switch 34 -> 100 %, bottom burner 38 -> 82 % with 'scripted'. The microwave's 'scripted'
+    target leaves the fingertips 0.28 m from the closed door's handle; 'grasp' with ``stillness='true'`` opened it on
+    8 of 8 probe seeds against 3 of 8 (results/kitchen-seeds/). TALAR's experiment commands use 'grasp'."""
     stillness: str = "observed"
     """What the posture term's stillness test reads: 'observed' (the change of the noisy observed distance, TALAR's
     reward) or 'true' (the change of the noise-free distance). The door's observation noise (+-0.01 rad, ten times
@@ -216,10 +216,10 @@ class KitchenEnv(Env):
         """Sub-task name per goal id."""
         return tasks.ALL_TASK_NAMES[: self._num_tasks]
 
-    @classmethod
-    def goal_names_of(cls, config: KitchenConfig) -> tuple[str, ...]:
+    @property
+    def goal_names(self) -> tuple[str, ...]:
         """The sub-task names (``task_names``): TALAR's six, and ``'hinge cabinet'`` with ``hinge_cabinet_task``."""
-        return tasks.ALL_TASK_NAMES[: len(tasks.ALL_TASK_NAMES) if config.hinge_cabinet_task else tasks.NUM_TASKS]
+        return self.task_names
 
     @property
     def state_observation_size(self) -> int:
@@ -262,7 +262,8 @@ class KitchenEnv(Env):
         """The fixed initial state and a sub-task: uniform over the unsatisfied ones, or ``goal`` (an id or a
         sub-task name; see ``Env.reset``) when given. ``kitchen-all`` pursues every sub-task and ignores ``goal``
         once checked."""
-        goal = self.check_goal(goal)
+        goal = self.goal_id(goal)
+        out_of_range = self.goal_out_of_range(goal)
         rng_goal, rng_obs, noise_rng = jax.random.split(_raw_key(rng), 3)
         data = self.physics.init(self._init_qpos)
         obs = self._observe(data.qpos, rng_obs)
@@ -282,9 +283,10 @@ class KitchenEnv(Env):
         )
         zero = jnp.zeros((), jnp.float32)
         metrics = {"success": zero, "distance": self._goal_distance(task, distance), "num_completed": zero}
-        return State(
+        state = State(
             data=data, obs=self.observe_goal(obs, task), reward=zero, done=zero, metrics=metrics, info={}, task=task
         )
+        return self.flag_out_of_range(state, out_of_range)
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.check_action(action)

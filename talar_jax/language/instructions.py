@@ -19,8 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.instructions import InstructionFormat, SentencesByGoal
-from envs.registry import instruction_envs, instruction_format, register_instruction_format
+from envs.instructions import (
+    InstructionFormat,
+    SentencesByGoal,
+    instruction_envs,
+    instruction_format,
+    register_instruction_format,
+)
 
 INSTRUCTIONS_FILE = Path(__file__).parent / "data" / "instructions.json"
 DEVELOPMENT_FILE = Path(__file__).parent / "data" / "development.json"
@@ -31,7 +36,7 @@ talar_jax/language/data/development.json``) and never trains anything."""
 
 SPLITS: tuple[str, ...] = ("train", "test", "all")
 
-__all__ = [  # InstructionFormat, SentencesByGoal and register_instruction_format are the env registry's own
+__all__ = [  # InstructionFormat, SentencesByGoal and register_instruction_format are envs.instructions' own
     "DEVELOPMENT_FILE",
     "INSTRUCTIONS_FILE",
     "SPLITS",
