@@ -298,6 +298,30 @@ def test_the_old_names_still_work_with_a_deprecation_warning():
     assert OldStyle().goal_names == ("north", "west", "south", "east") and OldStyle().goal_id("south") == 2
 
 
+# --- rendering --------------------------------------------------------------------------------------------------------
+def test_render_works_off_screen_with_no_mujoco_gl_set():
+    """No MUJOCO_GL and no display (a server, a container): the renderer makes its own EGL or OSMesa context."""
+    import ctypes.util
+
+    if not (ctypes.util.find_library("EGL") or ctypes.util.find_library("OSMesa")):
+        pytest.skip("neither EGL nor OSMesa is installed")
+    code = (
+        "import json, os, jax, numpy as np, envs\n"
+        "env = envs.make('clevr', physics='c')\n"
+        "qpos = np.stack([np.asarray(env.reset(jax.random.key(i)).data.qpos) for i in range(2)])\n"
+        "frames = env.render(qpos, 64, 48)\n"
+        "print(json.dumps({'shapes': [list(f.shape) for f in frames], 'std': float(np.std(frames)),"
+        " 'mujoco_gl': os.environ.get('MUJOCO_GL')}))\n"
+    )
+    environment = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=environment, capture_output=True, text=True, timeout=300, check=False
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["shapes"] == [[48, 64, 3]] * 2 and out["std"] > 0 and out["mujoco_gl"] is None
+
+
 # --- default physics and the CPU XLA flag --------------------------------------------------------------------------
 def test_make_picks_the_default_physics_and_an_explicit_physics_wins(compiled):
     assert envs.make(compiled.name).physics.name == envs.default_physics()

@@ -1,8 +1,7 @@
 """Render a scripted FrankaKitchen rollout to a GIF: ``python -m envs.kitchen.render --task microwave``.
 
-Needs an OpenGL backend. On a headless Linux machine set ``MUJOCO_GL=egl`` (Debian/Ubuntu packages
-``libegl1`` + ``libgl1``; with a GPU the vendor's EGL) or ``MUJOCO_GL=osmesa`` (``libosmesa6``) before starting
-Python.
+Needs OpenGL: on a headless Linux machine EGL (Debian/Ubuntu packages ``libegl1`` + ``libgl1``; with a GPU the vendor's
+EGL) or OSMesa (``libosmesa6``), which ``envs.render`` picks by itself when ``MUJOCO_GL`` is not set.
 """
 
 from __future__ import annotations
@@ -17,6 +16,7 @@ import numpy as np
 
 from envs.kitchen import scripted, tasks
 from envs.kitchen.env import KitchenEnv
+from envs.physics import PHYSICS_NAMES
 from envs.render import RenderError, write_video
 
 
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="microwave", choices=tasks.TASK_NAMES)
     parser.add_argument("--out", type=Path, default=None, help="GIF path (default kitchen_<task>.gif)")
-    parser.add_argument("--physics", default="c", choices=("c", "mjx"))
+    parser.add_argument("--physics", default="c", choices=PHYSICS_NAMES)
     parser.add_argument("--every", type=int, default=2, help="keep every n-th env step")
     parser.add_argument("--width", type=int, default=320)
     parser.add_argument("--height", type=int, default=240)
