@@ -2,9 +2,11 @@
 registered env, the batched step against the JAX env's own vmapped step, seeding, auto-reset, goals by id or name,
 the ids registered with Gymnasium (``gymnasium.make("talar_jax/Kitchen-v0")``) and clear errors."""
 
+import re
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +19,7 @@ from envs.render import RenderError
 gym = pytest.importorskip("gymnasium")
 check_env = pytest.importorskip("gymnasium.utils.env_checker").check_env
 
+ROOT = Path(__file__).resolve().parents[1]
 NUM_ENVS = 8
 EPISODE_LENGTH = 4
 _adapters: dict[tuple, object] = {}
@@ -198,6 +201,27 @@ def test_every_env_is_registered_with_gymnasium():
     assert isinstance(vec, GymnasiumVectorEnv)
     assert vec.spec.id == "talar_jax/Clevr-v0" and vec.spec.kwargs["goal"] == "red ball behind the blue ball"
     assert vec.reset(seed=0)[1]["goal"].tolist() == [1, 1]
+
+
+def test_gymnasium_make_imports_envs_itself_in_a_fresh_interpreter():
+    """Gymnasium 1.x loads no plugins: an id is known once the package registering it is imported. The module prefix
+    of the id (``"envs:..."``) has Gymnasium import ``envs`` itself, so nothing else needs importing first. Every
+    ``gymnasium.make`` id the README shows is made here as written."""
+    readme_ids = re.findall(r'gymnasium\.make\("([^"]+)"\)', (ROOT / "README.md").read_text())
+    assert readme_ids
+    code = (
+        "import sys, gymnasium\n"
+        f"for env_id in {readme_ids!r}:\n"
+        "    gymnasium.make(env_id, physics='c').reset(seed=0)\n"
+        "env = gymnasium.make('envs:talar_jax/Kitchen-v0', physics='c', goal='microwave')\n"
+        "assert env.spec.id == 'talar_jax/Kitchen-v0' and env.reset(seed=0)[1]['goal'] == 0\n"
+        "vec = gymnasium.make_vec('envs:talar_jax/Clevr-v0', num_envs=2, physics='c')\n"
+        "assert vec.reset(seed=0)[0].shape == (2, 10)\n"
+        "print('envs' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split() == ["True"]
 
 
 def test_an_env_registered_later_is_registered_with_gymnasium_too():
