@@ -42,7 +42,14 @@ import numpy as np
 
 import envs
 from talar_jax.checkpoint import load_tree, read_json_record
-from talar_jax.confidence import Calibration, ConfidenceError, Understanding, Verdict
+from talar_jax.confidence import NOT_UNDERSTOOD, Calibration, ConfidenceError, Understanding, Verdict
+from talar_jax.confidence.polarity import (
+    NEGATED,
+    OPPOSITE,
+    POSITIVE,
+    PolarityConfig,
+    polarity_probabilities,
+)
 from talar_jax.encodings import (
     ENCODING_FILE,
     POLICY_SOURCE,
@@ -52,7 +59,17 @@ from talar_jax.encodings import (
     one_seed_params,
     stored_encoding_params,
 )
-from talar_jax.language import build_cache, load_encoder, readout_features, sentence_features, stack_features
+from talar_jax.language import (
+    TOKEN_READOUT,
+    BertEncoder,
+    build_cache,
+    load_encoder,
+    readout_features,
+    sentence_features,
+    stack_features,
+)
+from talar_jax.language.polarity import LABELS as POLARITY_LABELS
+from talar_jax.language.polarity import task_phrase
 from talar_jax.networks import make_inference_fn, make_ppo_networks
 from talar_jax.report import LANGUAGE_RECORD
 
@@ -92,6 +109,10 @@ SHIPPED_RECORD = "shipped.json"
 CONFIG_FILE = "config.json"
 CONFIDENCE_FILE = "confidence.json"
 """A run's confidence calibration, in its method folder (``python -m experiments.calibrate`` writes it)."""
+POLARITY_PARAMS = "polarity.msgpack"
+POLARITY_RECORD = "polarity.json"
+"""The polarity classifier every agent reads (``talar_jax.confidence.polarity``), beside the shipped agents
+(``python -m experiments.polarity`` writes both); it reads one encoder's token states, named in the record."""
 DEFAULT_CALIBRATION_FILE = SHIPPED_AGENTS_DIR / "default_confidence.json"
 """The calibration of runs that have none of their own: the one fit on the kitchen TALAR run at the paper's budget
 (``python -m experiments.calibrate runs/kitchen``, ``results/abstention.md``). Its familiarity is that of
@@ -343,6 +364,7 @@ class Agent:
         self._episode = jax.jit(self._episode_fn, static_argnames=("deterministic",))
         self._batched_episodes: dict[bool, Any] = {}
         self._understanding: Understanding | None = None
+        self._polarity: tuple | None = None  # (members, config) of the polarity classifier, or () when none fits
         self._calibration: Calibration | None = None
 
     # --- language --------------------------------------------------------------------------------------------
@@ -466,13 +488,46 @@ class Agent:
         return self.judge([sentence])[0]
 
     def judge(self, sentences: Sequence[str], features: np.ndarray | None = None) -> list[Verdict]:
-        """The verdict on each sentence (``features``: their ``encode`` output, when already at hand)."""
+        """The verdict on each sentence (``features``: their ``encode`` output, when already at hand). A sentence the
+        polarity classifier reads as asking not to do its task, or to undo it, is not acted on, and its verdict says
+        which task it contradicts."""
         sentences = list(sentences)
         features = self.encode(sentences) if features is None else features
         try:
-            return self.understanding.judge(sentences, features, self.seed, self.calibration)
+            verdicts = self.understanding.judge(sentences, features, self.seed, self.calibration)
         except ConfidenceError as error:
             raise AgentError(str(error)) from None
+        probabilities = self.polarity(sentences, features)
+        if probabilities is None:
+            return verdicts
+        return [self._with_polarity(v, p) for v, p in zip(verdicts, probabilities, strict=True)]
+
+    def polarity(self, sentences: Sequence[str], features: np.ndarray | None = None) -> np.ndarray | None:
+        """(S, 3) the polarity classifier's probability of each of ``LABELS`` per sentence, or None when no
+        classifier reads this run's encoder (``features``: their ``encode`` output, when already at hand)."""
+        if self._polarity is None:
+            self._polarity = load_polarity(self.encoder) or ()
+        if not self._polarity:
+            return None
+        members, config = self._polarity
+        tokens = features if features is not None and self.readout == TOKEN_READOUT else None
+        if tokens is None:
+            try:
+                tokens = sentence_features(self.encoder, list(sentences), TOKEN_READOUT)
+            except ValueError as error:
+                raise AgentError(str(error)) from None
+        return polarity_probabilities(members, tokens, config)
+
+    def _with_polarity(self, verdict: Verdict, probabilities: np.ndarray) -> Verdict:
+        """The verdict, refused with its reason when the sentence does not ask for its task."""
+        config = self._polarity[1]
+        if probabilities[POSITIVE] >= config.act_threshold:
+            return verdict
+        label = POLARITY_LABELS[NEGATED if probabilities[NEGATED] >= probabilities[OPPOSITE] else OPPOSITE]
+        goal = verdict.goal if verdict.goal is not None else verdict.likeliest
+        task = task_phrase(self.env_name, goal)
+        reason = f'asks not to "{task}"' if label == "negated" else f'asks for the opposite of "{task}"'
+        return dataclasses.replace(verdict, verdict=NOT_UNDERSTOOD, goal=None, polarity=label, reason=reason)
 
     # --- acting ----------------------------------------------------------------------------------------------
     def act(self, obs: jax.Array, code: jax.Array, rng: jax.Array, deterministic: bool = False) -> jax.Array:
@@ -542,3 +597,26 @@ class Agent:
 def load(run_dir: str | Path, seed: int = 0, physics: str | None = None) -> Agent:
     """The agent of seed ``seed`` of a finished run folder (see the module docstring)."""
     return Agent(run_dir, seed=seed, physics=physics)
+
+
+def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tuple[list, PolarityConfig] | None:
+    """The shipped polarity classifier's members and config, or None when there is none or it reads another
+    encoder's token states than ``encoder``'s (a damaged file is one ``AgentError`` naming it)."""
+    import flax.serialization
+
+    record_path, params_path = folder / POLARITY_RECORD, folder / POLARITY_PARAMS
+    if not record_path.is_file() or not params_path.is_file():
+        return None
+    rebuild = "rebuild it with: python -m experiments.polarity"
+    try:
+        record = json.loads(record_path.read_text())
+    except json.JSONDecodeError:
+        raise AgentError(f"{record_path} is damaged; {rebuild}") from None
+    if record.get("encoder_cache_key") != encoder.cache_key:
+        return None
+    try:
+        state = flax.serialization.msgpack_restore(params_path.read_bytes())
+    except ValueError:
+        raise AgentError(f"{params_path} is damaged; {rebuild}") from None
+    members = [state[key] for key in sorted(state, key=int)]
+    return members, PolarityConfig(**record["config"])

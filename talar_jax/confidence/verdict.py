@@ -26,6 +26,10 @@ class Verdict:
             ``max_candidates``, each at least its ``candidate_floor`` but always the first).
         familiarity: the sentence's largest cosine similarity to a training instruction (pooled encoder embedding).
         decoded: the goal the acting seed's own code decodes to (None when no training instruction has that code).
+        polarity: what the sentence asks of the task it names (``talar_jax.language.polarity.LABELS``): to do it
+            ("positive"), not to do it ("negated") or to undo it ("opposite"); the agent acts on positive ones only.
+        reason: why a sentence that names a known task is not acted on, in words for a person (for example
+            'asks for the opposite of "open the microwave door"'); None otherwise.
     """
 
     sentence: str
@@ -35,6 +39,8 @@ class Verdict:
     candidates: tuple[tuple[int, float], ...]
     familiarity: float
     decoded: int | None
+    polarity: str = "positive"
+    reason: str | None = None
 
     @property
     def acts(self) -> bool:
@@ -60,6 +66,8 @@ class Verdict:
             "candidates": [{"goal": g, "score": round(float(s), 4)} for g, s in self.candidates],
             "familiarity": round(float(self.familiarity), 4),
             "decoded_goal": self.decoded,
+            "polarity": self.polarity,
+            "reason": self.reason,
         }
         if goal_names is not None:
             record["goal_name"] = name(self.goal)
@@ -71,6 +79,8 @@ class Verdict:
     def describe(self, goal_names: Sequence[str]) -> str:
         """One line for a person: the goal, or why the agent does not act and what it could mean."""
         listed = [f"{goal_names[g]} ({s:.2f})" for g, s in self.candidates]
+        if self.reason is not None:
+            return f'not understood: "{self.sentence}" {self.reason}; rephrase, or --act-anyway'
         if self.verdict == UNDERSTOOD:
             return f'understood: "{self.sentence}" means {goal_names[self.goal]} (confidence {self.confidence:.2f})'
         if self.verdict == AMBIGUOUS:

@@ -1,0 +1,111 @@
+"""Fit and measure the polarity classifier the shipped agents read: ``python -m experiments.polarity``.
+
+Builds both envs' polarity sets (``talar_jax.language.polarity``: sentences that ask for a task, ask not to do it, or
+ask for its opposite), reads every sentence's token states with the encoder (cached), fits the ensemble on the train
+halves of both envs together, and measures it on each half: per label, the share of sentences an agent would act on
+as the task (probability of ``positive`` at least the threshold), and the risk-coverage curve of that threshold.
+Writes the parameters (``polarity.msgpack``) and their record (``polarity.json``: config, encoder, measures) into
+``--out`` (default: beside the shipped agents, where ``talar_jax.agent`` finds them), and the measures as a table
+into ``--report``. Deterministic: the same code and encoder give the same bytes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import flax.serialization
+import numpy as np
+
+from experiments.cli import ArgumentParser, check_outputs, command
+from talar_jax import runtime
+from talar_jax.agent import POLARITY_PARAMS, POLARITY_RECORD, SHIPPED_AGENTS_DIR
+from talar_jax.confidence.polarity import POSITIVE, PolarityConfig, fit_polarity, polarity_probabilities
+from talar_jax.language import cached_sentence_features, load_encoder
+from talar_jax.language.polarity import LABELS, polarity_set
+from talar_jax.provenance import provenance
+
+ENVS = ("kitchen", "clevr")
+THRESHOLDS = (0.5, 0.7, 0.9, 0.95, 0.99)
+
+
+def measures(probabilities: np.ndarray, labels: np.ndarray, threshold: float) -> dict:
+    """Per label the share acted on as the task (P(positive) >= threshold); coverage and risk over the set: the
+    share acted on, and the share of non-positive sentences among those."""
+    acted = probabilities[:, POSITIVE] >= threshold
+    shares = {
+        label: float(acted[labels == k].mean()) if (labels == k).any() else None for k, label in enumerate(LABELS)
+    }
+    risk = float((labels[acted] != POSITIVE).mean()) if acted.any() else 0.0
+    return {"threshold": threshold, "acted": shares, "coverage": float(acted.mean()), "risk": risk}
+
+
+def report_table(record: dict) -> str:
+    """Markdown: per env and half, the share acted on of each label at the agents' threshold, and the curve."""
+    lines = [
+        "| env | half | sentences | positive acted on | negated acted on | opposite acted on |",
+        "|---|---|---|---|---|---|",
+    ]
+    curve = [
+        "| env | half | threshold | coverage (share acted on) | risk (not positive among acted) |",
+        "|---|---|---|---|---|",
+    ]
+    for env, halves in record["measures"].items():
+        for half, rows in halves.items():
+            at = next(row for row in rows["curve"] if row["threshold"] == record["config"]["act_threshold"])
+            cells = [f"{100 * at['acted'][label]:.1f} %" for label in LABELS]
+            lines.append(f"| {env} | {half} | {rows['sentences']} | {' | '.join(cells)} |")
+            curve += [
+                f"| {env} | {half} | {row['threshold']} | {100 * row['coverage']:.1f} % | {100 * row['risk']:.1f} % |"
+                for row in rows["curve"]
+            ]
+    return "\n".join(lines) + "\n\nRisk against coverage as the threshold moves:\n\n" + "\n".join(curve) + "\n"
+
+
+def run_command(argv: list[str] | None = None) -> dict:
+    runtime.start()
+    parser = ArgumentParser(prog="python -m experiments.polarity", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=SHIPPED_AGENTS_DIR, help="folder of the parameters and record")
+    parser.add_argument("--report", type=Path, default=None, help="a markdown file for the measures (optional)")
+    args = parser.parse_args(argv)
+    check_outputs((args.out, "--out", "folder"), (args.report, "--report", "file"))
+    config = PolarityConfig()
+    encoder = load_encoder(None)
+    sets = {env: polarity_set(env) for env in ENVS}
+    print("reading the polarity sets' token states (cached after the first run)", flush=True)
+    features = {env: cached_sentence_features(encoder, s.sentences, "tokens", progress=True) for env, s in sets.items()}
+    train = [(features[env][~s.held_out], s.labels[~s.held_out]) for env, s in sets.items()]
+    width = max(f.shape[1] for f, _ in train)
+    tokens = np.concatenate([np.pad(f, ((0, 0), (0, width - f.shape[1]), (0, 0))) for f, _ in train])
+    print(f"fitting {config.members} members on {len(tokens)} sentences", flush=True)
+    members = fit_polarity(tokens, np.concatenate([y for _, y in train]), config)
+    record = {**provenance(), "config": dataclasses.asdict(config), "labels": list(LABELS)}
+    record.update(encoder=encoder.name, encoder_cache_key=encoder.cache_key, measures={})
+    for env, s in sets.items():
+        probabilities = polarity_probabilities(members, features[env], config)
+        record["measures"][env] = {
+            half: {
+                "sentences": int((s.held_out == held).sum()),
+                "curve": [
+                    measures(probabilities[s.held_out == held], s.labels[s.held_out == held], t) for t in THRESHOLDS
+                ],
+            }
+            for half, held in (("train", False), ("held_out", True))
+        }
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / POLARITY_PARAMS).write_bytes(
+        flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(members))
+    )
+    (args.out / POLARITY_RECORD).write_text(json.dumps(record, indent=1) + "\n")
+    table = report_table(record)
+    if args.report is not None:
+        args.report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
+    print(table)
+    return record
+
+
+main = command(run_command)
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,145 @@
+"""The polarity sets: sentences that ask for one of an env's tasks, ask not to do it, or ask for its opposite.
+
+Built from ``data/polarity.json`` (frames such as "Don't {do}." or "Leave {state}." filled with each task's phrases)
+and the env's own training and test instructions, which all ask for their task. Each sentence is in the ``train`` or
+the ``held_out`` half: held out when its frame or its phrase is, so the held-out half measures phrasings and
+constructions the polarity classifier never read. CLEVR's phrases name the balls of a goal; every frame and phrase is
+filled for a few seeded goals rather than all 80, to keep the sets near the kitchen's size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from talar_jax.language.instructions import load_instructions
+
+POLARITY_FILE = Path(__file__).resolve().parent / "data" / "polarity.json"
+LABELS: tuple[str, ...] = ("positive", "negated", "opposite")
+"""What a sentence asks of its task: to do it, not to do it, or to undo it."""
+HALVES: tuple[str, ...] = ("train", "held_out")
+CLEVR_GOALS_PER_FILL = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class PolaritySet:
+    """Labelled sentences of one env.
+
+    Attributes:
+        env: the env.
+        sentences: (S,) the sentences.
+        labels: (S,) int32 index into ``LABELS``.
+        goals: (S,) int32 the goal each sentence is about.
+        held_out: (S,) bool, True for the held-out half.
+    """
+
+    env: str
+    sentences: tuple[str, ...]
+    labels: np.ndarray
+    goals: np.ndarray
+    held_out: np.ndarray
+
+    def half(self, held_out: bool) -> PolaritySet:
+        """The rows of one half."""
+        rows = np.flatnonzero(self.held_out == held_out)
+        return PolaritySet(
+            self.env, tuple(self.sentences[i] for i in rows), self.labels[rows], self.goals[rows], self.held_out[rows]
+        )
+
+
+@cache
+def _ingredients() -> dict:
+    return json.loads(POLARITY_FILE.read_text())
+
+
+def _sentence(frame: str, phrase: tuple[str, str] | str) -> str:
+    """A frame filled with a verb phrase [base, gerund] or a state phrase; the first letter capitalised."""
+    if isinstance(phrase, str):
+        text = frame.replace("{state}", phrase)
+    else:
+        text = frame.replace("{do}", phrase[0]).replace("{doing}", phrase[1])
+    return text[0].upper() + text[1:]
+
+
+def _fills(label: str, task: dict) -> list[tuple[str, tuple[str, str] | str, bool]]:
+    """(frame, phrase, held out) for every frame of ``label`` and every phrase it takes."""
+    frames = _ingredients()["frames"][label]
+    verbs = task["do"] if label != "opposite" else task["undo"]
+    out = []
+    for frame_half, frame_list in frames.items():
+        for frame in frame_list:
+            phrases = (task["done"] if label == "positive" else task["undone"]) if "{state}" in frame else verbs
+            for phrase_half, phrase_list in phrases.items():
+                held = "held_out" in (frame_half, phrase_half)
+                out += [(frame, tuple(p) if isinstance(p, list) else p, held) for p in phrase_list]
+    return out
+
+
+def polarity_set(env: str) -> PolaritySet:
+    """The env's polarity sentences (deterministic): the frames filled per task, and the env's training instructions
+    (train half) and test instructions (held-out half) as ``positive``."""
+    rows: list[tuple[str, int, int, bool]] = []
+    if env == "clevr":
+        slots = clevr_slots()
+        rng = np.random.default_rng(0)
+        task = _ingredients()["clevr"]
+        for label_index, label in enumerate(LABELS):
+            for frame, phrase, held in _fills(label, task):
+                for goal in rng.choice(len(slots), CLEVR_GOALS_PER_FILL, replace=False):
+                    rows.append((_filled(_sentence(frame, phrase), slots[goal]), label_index, int(goal), held))
+    else:
+        names = kitchen_goal_names()
+        for label_index, label in enumerate(LABELS):
+            for name, task in _ingredients()[env].items():
+                rows += [(_sentence(f, p), label_index, names.index(name), h) for f, p, h in _fills(label, task)]
+    for split, held in (("train", False), ("test", True)):
+        instructions = load_instructions(env, split)
+        rows += [(s, 0, int(g), held) for s, g in zip(instructions.sentences, instructions.goal_ids, strict=True)]
+    unique = {}
+    for row in rows:  # a sentence made twice keeps its first label; both halves: held out
+        first = unique.setdefault(row[0], row)
+        if row[3] and not first[3]:
+            unique[row[0]] = (*first[:3], True)
+    sentences, labels, goals, held_out = zip(*unique.values(), strict=True)
+    return PolaritySet(env, sentences, np.array(labels, np.int32), np.array(goals, np.int32), np.array(held_out))
+
+
+def task_phrase(env: str, goal: int) -> str:
+    """A short verb phrase that asks for ``goal`` (the first phrase of its task in the polarity sets), for telling a
+    person which task a sentence contradicts."""
+    if env == "clevr":
+        return _filled(_ingredients()["clevr"]["do"]["train"][0][0], clevr_slots()[goal])
+    return _ingredients()[env][kitchen_goal_names()[goal]]["do"]["train"][0][0]
+
+
+@cache
+def clevr_slots() -> tuple[dict[str, str], ...]:
+    """Per CLEVR goal id, the words its placeholders take ({subject}, {relation}, {object}), read through the env's
+    public instruction format (a user pattern holding only the placeholders)."""
+    import envs
+
+    marker = "{subject}|{relation}|{object}"
+    sentences, goals = envs.instruction_format("clevr").read_user({"clevr_patterns": [marker]}, POLARITY_FILE)
+    slots = {
+        int(g): dict(zip(("{subject}", "{relation}", "{object}"), s.split("|"), strict=True))
+        for s, g in zip(sentences, goals, strict=True)
+    }
+    return tuple(slots[goal] for goal in range(len(slots)))
+
+
+@cache
+def kitchen_goal_names() -> tuple[str, ...]:
+    """The kitchen's goal names by goal id, as its env lists them."""
+    import envs
+
+    return tuple(envs.make("kitchen").goal_names)
+
+
+def _filled(text: str, slots: dict[str, str]) -> str:
+    for slot, word in slots.items():
+        text = text.replace(slot, word)
+    return text
