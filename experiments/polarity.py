@@ -44,8 +44,8 @@ def measures(probabilities: np.ndarray, labels: np.ndarray, threshold: float) ->
 def report_table(record: dict) -> str:
     """Markdown: per env and half, the share acted on of each label at the agents' threshold, and the curve."""
     lines = [
-        "| env | half | sentences | positive acted on | negated acted on | opposite acted on |",
-        "|---|---|---|---|---|---|",
+        "| env | half | sentences | " + " | ".join(f"{label} acted on" for label in LABELS) + " |",
+        "|---|---|---|" + "---|" * len(LABELS),
     ]
     curve = [
         "| env | half | threshold | coverage (share acted on) | risk (not positive among acted) |",
