@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -221,6 +222,23 @@ def _read_tree(path: Path, folder: Path, stage: Path) -> Any:
     return tree
 
 
+def _drop_closed_loop_callbacks() -> None:
+    """When a damaged checkpoint's restore fails, tensorstore reads still in flight finish afterwards and call back
+    into orbax's event loop, which is closed by then; Python reports each as an unraisable ``RuntimeError`` with a
+    traceback, after the one-line error. Those reports (and only those) are dropped; others reach the previous hook."""
+    previous = sys.unraisablehook
+    if getattr(previous, "drops_closed_loop_callbacks", False):
+        return
+
+    def hook(unraisable) -> None:
+        error = unraisable.exc_value
+        if not (isinstance(error, RuntimeError) and str(error) == "Event loop is closed"):
+            previous(unraisable)
+
+    hook.drops_closed_loop_callbacks = True
+    sys.unraisablehook = hook
+
+
 def read_policy_params(folder: str | Path) -> dict[str, Any]:
     """The policy's seed-stacked parameters of a method folder: its last checkpoint (a shipped agent's
     ``POLICY_FILE``: the last checkpoint's parameters of one seed)."""
@@ -236,13 +254,14 @@ def read_policy_params(folder: str | Path) -> dict[str, Any]:
         raise AgentError(f"{ppo_dir / POLICY_FILE} is missing: {_rebuild_hint(folder, stage)}")
     if not checkpoints.is_dir():
         raise AgentError(f"{ppo_dir} has no policy checkpoints: {_rebuild_hint(folder, stage)}")
+    _drop_closed_loop_callbacks()
     try:
-        manager = ocp.CheckpointManager(checkpoints.absolute())
-        step = manager.latest_step()
-        if step is None:
-            raise AgentError(f"{checkpoints} holds no policy checkpoint: {_rebuild_hint(folder, stage)}")
-        # The arrays are read here, not on first use, so that a damaged file is told now and in one line.
-        return jax.device_get(manager.restore(step, args=ocp.args.StandardRestore())["params"])
+        with ocp.CheckpointManager(checkpoints.absolute()) as manager:
+            step = manager.latest_step()
+            if step is None:
+                raise AgentError(f"{checkpoints} holds no policy checkpoint: {_rebuild_hint(folder, stage)}")
+            # The arrays are read here, not on first use, so that a damaged file is told now and in one line.
+            return jax.device_get(manager.restore(step, args=ocp.args.StandardRestore())["params"])
     except AgentError:
         raise
     except Exception as error:  # orbax and tensorstore raise many types for a damaged checkpoint

@@ -420,9 +420,14 @@ def test_token_readout_is_the_encoders_states_whose_mean_is_the_sentence_embeddi
         cache.sentence_features("tokens")
     with pytest.raises(ValueError, match="needs the encoder"):
         readout_features(cache, "tokens")
+    # a sentence longer than the token slots is read at its own width; only the encoder's positions bound it
     long = " ".join(["open the microwave"] * 12)
-    with pytest.raises(ValueError, match=r"word pieces; the token readout reads at most 30: shorten it$"):
-        sentence_features(tiny_encoder, [long], "tokens")
+    wide = sentence_features(tiny_encoder, [long, sentences[0]], "tokens")
+    assert wide.shape[1] == len(tiny_encoder.tokenize([long])[0]) + 2 > states.shape[1]
+    np.testing.assert_allclose(wide[1, : states.shape[1]], states[0], atol=2e-3)  # more padding, same states
+    too_long = " ".join(["microwave"] * (tiny_encoder.config.max_position_embeddings - 1))
+    with pytest.raises(ValueError, match=r"word pieces is longer than the \d+ the encoder .* reads: split it"):
+        sentence_features(tiny_encoder, [too_long], "tokens")
 
 
 def test_cache_subset_matches_instruction_splits(tiny_cache):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from experiments import compare, hrl, paper, patterns, pipeline, study
+from talar_jax.language.encoder import ENCODER_VARIANTS
 
 
 def _validate(argv: list[str], monkeypatch) -> object:
@@ -31,7 +32,9 @@ def _validate(argv: list[str], monkeypatch) -> object:
 def test_every_command_is_valid_for_its_module(tmp_path, monkeypatch):
     args = paper.PaperArgs(root=tmp_path, seeds=3, physics="c", finetuned_bert=True)
     jobs = paper.jobs(args)
-    assert [job.name for job in jobs][:5] == ["clevr", "kitchen", "compare-clevr", "table3", "compare-kitchen"]
+    names = [job.name for job in jobs]
+    encoders = [f"encoder-{name}" for name in ENCODER_VARIANTS]
+    assert names[:9] == ["clevr", "kitchen", "compare-clevr", "table3", *encoders, "compare-kitchen"]
     assert {"ablation", "dataset-size", "aligned", "end-to-end", "finetuned-bert", "hrl-clevr"} <= {
         j.name for j in jobs
     }
