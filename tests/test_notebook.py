@@ -16,6 +16,8 @@ def test_the_quickstart_notebook_runs_and_shows_what_it_promises():
     text = "".join(output.get("text", "") for output in outputs)
     assert 'understood: "Open the microwave door" means microwave' in text
     assert "not understood" in text or "not sure" in text  # the sandwich is not acted on
+    assert 'asks for the opposite of "open the microwave door"' in text  # nor is the opposite of a task
+    assert 'understood: "Don\'t forget to open the microwave." means microwave' in text  # a request all the same
     assert "success: True" in text
     images = [output for output in outputs if "image/gif" in output.get("data", {})]
     assert images, "the episode's GIF is shown inline"
