@@ -63,3 +63,22 @@ def test_an_unknown_readout_is_an_encoder_error(readout):
 def test_the_named_variants_are_the_default_network():
     assert set(ENCODER_VARIANTS) == {"minilm-cls", "minilm-layer3", "minilm-word-pieces", "random-bert"}
     assert all(set(options) <= {"readout", "random_weights_seed"} for options in ENCODER_VARIANTS.values())
+
+
+def test_the_lead_is_talar_over_the_best_finished_baseline(tmp_path, monkeypatch):
+    import json
+
+    from experiments.analysis import encoder_lead
+
+    monkeypatch.setattr(encoder_lead, "agreement", lambda name, env="clevr": 0.5)
+    for method, rates in (("talar", [0.9, 1.0]), ("bert-binary", [0.8, 0.8]), ("bert-continuous", [0.6, 0.7])):
+        (tmp_path / "done" / method).mkdir(parents=True)
+        summary = {"final_success": {"test": rates, "train": rates}}
+        (tmp_path / "done" / method / "summary.json").write_text(json.dumps(summary))
+    finished = encoder_lead.encoder_row("minilm-cls", tmp_path / "done", onehot=50.0)
+    assert finished["lead"] == pytest.approx(95.0 - 80.0)
+    assert finished["success_test"]["onehot"] == 50.0
+    waiting = encoder_lead.encoder_row("random-bert", tmp_path / "missing", onehot=50.0)
+    assert waiting["lead"] is None and waiting["agreement"] == 0.5
+    table = encoder_lead.lead_table([finished, waiting])
+    assert "| minilm-cls | 50.0 | 95.0 | 80.0 | 65.0 | 50.0 | +15.0 |" in table and "not finished" in table
