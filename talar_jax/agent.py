@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import sys
 from collections import Counter
 from collections.abc import Sequence
@@ -222,10 +223,18 @@ def _read_tree(path: Path, folder: Path, stage: Path) -> Any:
     return tree
 
 
-def _drop_closed_loop_callbacks() -> None:
-    """When a damaged checkpoint's restore fails, tensorstore reads still in flight finish afterwards and call back
-    into orbax's event loop, which is closed by then; Python reports each as an unraisable ``RuntimeError`` with a
-    traceback, after the one-line error. Those reports (and only those) are dropped; others reach the previous hook."""
+class _UnretrievedReadErrors(logging.Filter):
+    """Drops asyncio's "exception was never retrieved" reports (see ``_quiet_failed_restore``)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "exception was never retrieved" not in record.getMessage()
+
+
+def _quiet_failed_restore() -> None:
+    """When a damaged checkpoint's restore fails, the tensorstore reads still in flight finish afterwards: some call
+    back into orbax's event loop, closed by then (Python reports an unraisable ``RuntimeError``), and some leave a
+    failed future nobody reads (asyncio logs it when it is collected). Either prints a traceback after the one-line
+    error, at random. Those two reports, and only those, are dropped; the restore's own error is raised as usual."""
     previous = sys.unraisablehook
     if getattr(previous, "drops_closed_loop_callbacks", False):
         return
@@ -237,6 +246,7 @@ def _drop_closed_loop_callbacks() -> None:
 
     hook.drops_closed_loop_callbacks = True
     sys.unraisablehook = hook
+    logging.getLogger("asyncio").addFilter(_UnretrievedReadErrors())
 
 
 def read_policy_params(folder: str | Path) -> dict[str, Any]:
@@ -254,7 +264,7 @@ def read_policy_params(folder: str | Path) -> dict[str, Any]:
         raise AgentError(f"{ppo_dir / POLICY_FILE} is missing: {_rebuild_hint(folder, stage)}")
     if not checkpoints.is_dir():
         raise AgentError(f"{ppo_dir} has no policy checkpoints: {_rebuild_hint(folder, stage)}")
-    _drop_closed_loop_callbacks()
+    _quiet_failed_restore()
     try:
         with ocp.CheckpointManager(checkpoints.absolute()) as manager:
             step = manager.latest_step()
