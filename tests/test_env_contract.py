@@ -231,7 +231,7 @@ def test_a_traced_goal_out_of_range_gives_a_nan_state(compiled):
     for bad in (n, -1, 999):
         state = reset(jax.random.key(0), bad)
         assert np.isnan(np.asarray(state.obs)).all() and np.isnan(float(state.reward)), bad
-    for good in range(n):
+    for good in sorted({0, n // 2, n - 1}):  # the ends and the middle: an eager reset per goal is slow
         state = reset(jax.random.key(0), good)
         assert np.isfinite(np.asarray(state.obs)).all()
         jax.tree.map(assert_close, state, env.reset(jax.random.key(0), good))
