@@ -55,6 +55,7 @@ from talar_jax.language import (
     DEVELOPMENT_FILE,
     build_cache,
     cached_sentence_features,
+    features_with_cache,
     load_encoder,
     load_instructions,
     load_user_instructions,
@@ -225,13 +226,16 @@ def measure_run(folder: Path, sentences: SentenceSet) -> tuple[Measures, dict]:
         understanding = Understanding(
             artifact, params, cached[train], cache.goal_ids[train], int(cache.num_goals), encoder.embedding_dim
         )
-        rows = {sentence: row for row, sentence in enumerate(cache.sentences)}
-        fresh = [s for s in dict.fromkeys(sentences.sentences) if s not in rows]
-        computed = cached_sentence_features(encoder, fresh, artifact.readout, description="calibration sentences")
+        features = features_with_cache(
+            sentences.sentences,
+            cache.sentences,
+            cached,
+            lambda fresh: cached_sentence_features(
+                encoder, fresh, artifact.readout, description="calibration sentences"
+            ),
+        )
     except (EncodingError, ValueError) as error:
         raise AgentError(str(error)) from None
-    at = {s: i for i, s in enumerate(fresh)}
-    features = np.stack([cached[rows[s]] if s in rows else computed[at[s]] for s in sentences.sentences])
     measures = Measures.concatenate(
         [understanding.measure(features[i : i + 512]) for i in range(0, len(features), 512)]
     )

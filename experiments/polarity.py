@@ -22,7 +22,7 @@ from experiments.cli import ArgumentParser, check_outputs, command
 from talar_jax import runtime
 from talar_jax.agent import POLARITY_PARAMS, POLARITY_RECORD, SHIPPED_AGENTS_DIR
 from talar_jax.confidence.polarity import POSITIVE, PolarityConfig, fit_polarity, polarity_probabilities
-from talar_jax.language import cached_sentence_features, load_encoder
+from talar_jax.language import cached_sentence_features, load_encoder, stack_features
 from talar_jax.language.polarity import LABELS, polarity_set
 from talar_jax.provenance import provenance
 
@@ -76,8 +76,7 @@ def run_command(argv: list[str] | None = None) -> dict:
     print("reading the polarity sets' token states (cached after the first run)", flush=True)
     features = {env: cached_sentence_features(encoder, s.sentences, "tokens", progress=True) for env, s in sets.items()}
     train = [(features[env][~s.held_out], s.labels[~s.held_out]) for env, s in sets.items()]
-    width = max(f.shape[1] for f, _ in train)
-    tokens = np.concatenate([np.pad(f, ((0, 0), (0, width - f.shape[1]), (0, 0))) for f, _ in train])
+    tokens = stack_features([row for features_of_env, _ in train for row in features_of_env])
     print(f"fitting {config.members} members on {len(tokens)} sentences", flush=True)
     members = fit_polarity(tokens, np.concatenate([y for _, y in train]), config)
     record = {**provenance(), "config": dataclasses.asdict(config), "labels": list(LABELS)}

@@ -65,10 +65,10 @@ from talar_jax.language import (
     TOKEN_READOUT,
     BertEncoder,
     build_cache,
+    features_with_cache,
     load_encoder,
     readout_features,
     sentence_features,
-    stack_features,
 )
 from talar_jax.language.polarity import LABELS as POLARITY_LABELS
 from talar_jax.language.polarity import task_phrase
@@ -426,18 +426,16 @@ class Agent:
                 raise TypeError(f"a sentence is a str, got {type(sentence).__name__}: {sentence!r}")
             if not sentence.strip():
                 raise AgentError("a sentence is empty")
-        rows = {sentence: row for row, sentence in enumerate(self.cache.sentences)}
-        fresh = [sentence for sentence in dict.fromkeys(sentences) if sentence not in rows]
         try:
-            computed = sentence_features(self.encoder, fresh, self.readout) if fresh else None
+            features = features_with_cache(
+                sentences,
+                self.cache.sentences,
+                self.cache_features(),
+                lambda fresh: sentence_features(self.encoder, fresh, self.readout),
+            )
         except ValueError as error:
             raise AgentError(str(error)) from None
-        # sentences of the instruction file: exactly the features the run's stages read (loaded at construction)
-        cached = self.cache_features()
-        fresh_rows = {sentence: index for index, sentence in enumerate(fresh)}
-        return stack_features([cached[rows[s]] if s in rows else computed[fresh_rows[s]] for s in sentences]).astype(
-            np.float32
-        )
+        return features.astype(np.float32)
 
     def cache_features(self) -> np.ndarray:
         """The features ``encode`` gives, of every sentence of the env's instruction file (cache rows)."""

@@ -23,7 +23,7 @@ import re
 import tempfile
 import warnings
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -235,6 +235,21 @@ def stack_features(rows: Sequence[np.ndarray]) -> np.ndarray:
     if width is None:
         return np.stack(rows)
     return np.stack([np.pad(row, ((0, width - row.shape[0]), (0, 0))) for row in rows])
+
+
+def features_with_cache(
+    sentences: Sequence[str],
+    cache_sentences: Sequence[str],
+    cached: np.ndarray,
+    compute: Callable[[list[str]], np.ndarray],
+) -> np.ndarray:
+    """Each sentence's features: its row of ``cached`` (the features of ``cache_sentences``, exactly what a run's stages
+    read) when it is one of them, else ``compute``'s (called once, on the distinct others); ``stack_features``-ed."""
+    rows = {sentence: row for row, sentence in enumerate(cache_sentences)}
+    fresh = [sentence for sentence in dict.fromkeys(sentences) if sentence not in rows]
+    computed = compute(fresh) if fresh else None
+    at = {sentence: index for index, sentence in enumerate(fresh)}
+    return stack_features([cached[rows[s]] if s in rows else computed[at[s]] for s in sentences])
 
 
 def cached_sentence_features(
