@@ -552,7 +552,7 @@ class Agent:
             return verdict
         label = POLARITY_LABELS[NEGATED if probabilities[NEGATED] >= probabilities[OPPOSITE] else OPPOSITE]
         goal = verdict.goal if verdict.goal is not None else verdict.likeliest
-        task = task_phrase(self.env_name, goal)
+        task = task_phrase(self.env_name, goal, self.env.goal_names)
         reason = f'asks not to "{task}"' if label == "negated" else f'asks for the opposite of "{task}"'
         return dataclasses.replace(verdict, verdict=NOT_UNDERSTOOD, goal=None, polarity=label, reason=reason)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from functools import cache
 from pathlib import Path
 
@@ -108,12 +109,13 @@ def polarity_set(env: str) -> PolaritySet:
     return PolaritySet(env, sentences, np.array(labels, np.int32), np.array(goals, np.int32), np.array(held_out))
 
 
-def task_phrase(env: str, goal: int) -> str:
+def task_phrase(env: str, goal: int, goal_names: Sequence[str] | None = None) -> str:
     """A short verb phrase that asks for ``goal`` (the first phrase of its task in the polarity sets), for telling a
-    person which task a sentence contradicts."""
+    person which task a sentence contradicts. ``goal_names``: the env's, when the caller already has its env."""
     if env == "clevr":
         return _filled(_ingredients()["clevr"]["do"]["train"][0][0], clevr_slots()[goal])
-    return _ingredients()[env][kitchen_goal_names()[goal]]["do"]["train"][0][0]
+    name = (goal_names if goal_names is not None else kitchen_goal_names())[goal]
+    return _ingredients()[env][name]["do"]["train"][0][0]
 
 
 @cache
