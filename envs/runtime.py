@@ -16,8 +16,8 @@ Nothing here runs on import: importing ``envs`` never touches ``XLA_FLAGS``.
 
 from __future__ import annotations
 
+import inspect
 import os
-import sys
 import warnings
 from pathlib import Path
 
@@ -46,10 +46,21 @@ def cpu_xla_flag_chosen() -> bool:
 
 
 def backends_initialised() -> bool:
-    """Whether JAX has created its backends (after which ``XLA_FLAGS`` is no longer read)."""
-    from jax._src import xla_bridge
+    """Whether JAX has created its backends (after which ``XLA_FLAGS`` is no longer read).
 
-    return xla_bridge.backends_are_initialized()
+    JAX's public API has no query for this, but it documents one rule that shows it: ``jax_num_cpu_devices`` may
+    change only before the backends start (``jax.config.update`` raises ``RuntimeError`` afterwards). So the probe
+    asks for another value and, when that was still allowed, puts the old one straight back.
+    """
+    import jax
+
+    current = jax.config.jax_num_cpu_devices
+    try:
+        jax.config.update("jax_num_cpu_devices", current + 1)
+    except RuntimeError:
+        return True
+    jax.config.update("jax_num_cpu_devices", current)
+    return False
 
 
 def set_cpu_xla_flag() -> bool:
@@ -66,7 +77,7 @@ def set_cpu_xla_flag() -> bool:
 def _caller_stacklevel() -> int:
     """The ``warnings.warn`` stacklevel of the first frame outside this package, so the warning names the user's
     line (``make`` reaches here through the registry, the env class and the physics factory)."""
-    frame, level = sys._getframe(1), 1
+    frame, level = inspect.currentframe().f_back, 1
     while frame is not None and frame.f_code.co_filename.startswith(_ENVS_DIR):
         frame, level = frame.f_back, level + 1
     return level
