@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import logging
 import os
 import platform
 import sys
@@ -62,10 +63,23 @@ def _quiet_xla_log() -> None:
     if "jax" not in sys.modules:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
     elif os.environ.get("TF_CPP_MIN_LOG_LEVEL") == "1":  # jax's default, already read by jaxlib
-        from jax._src.lib import utils
-
         os.environ["TF_CPP_MIN_LOG_LEVEL"] = "2"
-        utils.absl_set_min_log_level(2)
+        _cpp_log_at_errors()
+
+
+def _cpp_log_at_errors() -> None:
+    """XLA's C++ log at errors only, through JAX's public switch ``jax_logging_level`` (whose "ERROR" sets the C++
+    minimum level to 2). The switch also gives the Python ``jax`` and ``jaxlib`` loggers that level and a handler of
+    its own; both are put back, so that JAX's Python warnings show as they did."""
+    import jax
+
+    loggers = [logging.getLogger(name) for name in ("jax", "jaxlib")]
+    kept = [(logger, logger.level, list(logger.handlers)) for logger in loggers]
+    jax.config.update("jax_logging_level", "ERROR")
+    for logger, level, handlers in kept:
+        logger.setLevel(level)
+        for handler in [handler for handler in logger.handlers if handler not in handlers]:
+            logger.removeHandler(handler)
 
 
 def _select_mujoco_gl() -> None:
