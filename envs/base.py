@@ -11,6 +11,7 @@ import abc
 import dataclasses
 import numbers
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -81,6 +82,13 @@ class EnvConfig:
     """Append the episode's goal to the observation (``Env.goal_features``), so that a stock trainer that sees
     only ``state.obs`` can learn the goal task. Off by default: TALAR's policies read the goal from language.
     Envs with a single fixed task (``clevr-arrangement``, ``kitchen-all``) have no goal part."""
+
+
+def check_choice(option: str, value: str, choices: Sequence[str]) -> None:
+    """Raises ``ValueError`` naming ``option`` and its valid values unless ``value`` is one of ``choices`` (the envs'
+    configs check their string options with it, so every such error reads alike)."""
+    if value not in choices:
+        raise ValueError(f"unknown {option} {value!r}; choose one of {', '.join(choices)}")
 
 
 def replace_config(config: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:

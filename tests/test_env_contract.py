@@ -137,6 +137,24 @@ def test_backends_agree_on_a_short_rollout(compiled):
     np.testing.assert_allclose(mjx_obs, c_obs, atol=AGREE_ATOL, rtol=0)
 
 
+@pytest.mark.parametrize(
+    ("name", "option"),
+    [
+        ("clevr", "task"),
+        ("clevr", "arrangement_reward"),
+        ("clevr", "action_type"),
+        ("kitchen", "integrator"),
+        ("kitchen", "posture_targets"),
+        ("kitchen", "stillness"),
+        ("kitchen", "all_tasks_reward"),
+    ],
+)
+def test_an_unknown_string_option_names_its_valid_values(name, option):
+    default = getattr(envs.get_default_config(name), option)
+    with pytest.raises(ValueError, match=f"^unknown {option} 'nope'; choose one of .*{default}"):
+        envs.make(name, physics="c", **{option: "nope"})
+
+
 def test_clear_errors(compiled):
     name, env = compiled.name, compiled.c_env
     with pytest.raises(ValueError, match="registered environments: .*clevr"):

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import mujoco
 from flax import struct
 
-from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.base import ActionSpec, Env, EnvConfig, State, check_choice
 from envs.clevr import tasks
 from envs.physics import PhysicsState
 
@@ -91,13 +91,9 @@ class ClevrEnv(Env):
     def __init__(self, config: ClevrConfig | None = None, physics: str | None = None):
         config = config if config is not None else ClevrConfig()
         if isinstance(config, ClevrConfig):
-            if config.task not in TASK_KINDS:
-                raise ValueError(f"unknown task {config.task!r}; choose one of {', '.join(TASK_KINDS)}")
-            if config.arrangement_reward not in tasks.ARRANGEMENT_REWARDS:
-                valid = ", ".join(tasks.ARRANGEMENT_REWARDS)
-                raise ValueError(f"unknown arrangement_reward {config.arrangement_reward!r}; choose one of {valid}")
-            if config.action_type not in ACTION_TYPES:
-                raise ValueError(f"unknown action_type {config.action_type!r}; choose one of {', '.join(ACTION_TYPES)}")
+            check_choice("task", config.task, TASK_KINDS)
+            check_choice("arrangement_reward", config.arrangement_reward, tasks.ARRANGEMENT_REWARDS)
+            check_choice("action_type", config.action_type, ACTION_TYPES)
             if config.action_type == "collect" and config.task != "goal":
                 raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
             if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from envs.base import ActionSpec, Env, EnvConfig, State
+from envs.base import ActionSpec, Env, EnvConfig, State, check_choice
 from envs.kitchen import tasks
 
 INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
@@ -151,16 +151,10 @@ class KitchenEnv(Env):
     def __init__(self, config: KitchenConfig | None = None, physics: str | None = None):
         config = config if config is not None else KitchenConfig()
         if isinstance(config, KitchenConfig):
-            if config.integrator not in INTEGRATORS:
-                raise ValueError(f"unknown integrator {config.integrator!r}; choose one of {', '.join(INTEGRATORS)}")
-            if config.posture_targets not in tasks.POSTURE_TARGETS:
-                valid = ", ".join(tasks.POSTURE_TARGETS)
-                raise ValueError(f"unknown posture_targets {config.posture_targets!r}; choose one of {valid}")
-            if config.stillness not in STILLNESS_TESTS:
-                raise ValueError(f"unknown stillness {config.stillness!r}; choose one of {', '.join(STILLNESS_TESTS)}")
-            if config.all_tasks_reward not in ALL_TASKS_REWARDS:
-                valid = ", ".join(ALL_TASKS_REWARDS)
-                raise ValueError(f"unknown all_tasks_reward {config.all_tasks_reward!r}; choose one of {valid}")
+            check_choice("integrator", config.integrator, INTEGRATORS)
+            check_choice("posture_targets", config.posture_targets, tasks.POSTURE_TARGETS)
+            check_choice("stillness", config.stillness, STILLNESS_TESTS)
+            check_choice("all_tasks_reward", config.all_tasks_reward, ALL_TASKS_REWARDS)
             if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
                 raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
         super().__init__(config, physics)
