@@ -114,8 +114,9 @@ def replace_config(config: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
 class Env(abc.ABC):
     """Base class of every talar-jax environment.
 
-    Subclasses set ``xml_path`` (the MJCF beside the env module) and ``config_class``, and implement
-    ``reset`` and ``step``. ``self`` holds constants only; all per-episode data lives in ``State``.
+    Subclasses set ``xml_path`` (the MJCF beside the env module) and ``config_class``, implement ``reset`` and
+    ``step``, and override ``check_config`` when some option values cannot run. ``self`` holds constants only; all
+    per-episode data lives in ``State``.
     """
 
     config_class: ClassVar[type[EnvConfig]] = EnvConfig
@@ -143,8 +144,13 @@ class Env(abc.ABC):
         self.config = config if config is not None else self.config_class()
         if not isinstance(self.config, self.config_class):
             raise TypeError(f"{type(self).__name__} expects a {self.config_class.__name__}, got {type(self.config)}")
+        self.check_config(self.config)
         self.mj_model = self.load_model()
         self.physics: Physics = make_physics(default_physics() if physics is None else physics, self.mj_model)
+
+    def check_config(self, config: EnvConfig) -> None:
+        """Raises ``ValueError`` for option values this env cannot run; called before the model is built (override
+        it, with ``check_choice`` for string options, so that a bad value stops ``make`` with one clear line)."""
 
     def load_model(self) -> mujoco.MjModel:
         """Compiles the env's MJCF (override to edit the spec before compiling)."""

@@ -89,18 +89,18 @@ class ClevrEnv(Env):
     render_camera = {"lookat": (0.0, 0.2, -0.3), "distance": 1.75, "azimuth": 90.0, "elevation": -90.0}
 
     def __init__(self, config: ClevrConfig | None = None, physics: str | None = None):
-        config = config if config is not None else ClevrConfig()
-        if isinstance(config, ClevrConfig):
-            check_choice("task", config.task, TASK_KINDS)
-            check_choice("arrangement_reward", config.arrangement_reward, tasks.ARRANGEMENT_REWARDS)
-            check_choice("action_type", config.action_type, ACTION_TYPES)
-            if config.action_type == "collect" and config.task != "goal":
-                raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
-            if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:
-                raise ValueError("timestep must be > 0; substeps, solver_iterations and ls_iterations >= 1")
         super().__init__(config, physics)
         self._arrangement = self.config.task == "arrangement"
         self._collect = self.config.action_type == "collect"
+
+    def check_config(self, config: ClevrConfig) -> None:
+        check_choice("task", config.task, TASK_KINDS)
+        check_choice("arrangement_reward", config.arrangement_reward, tasks.ARRANGEMENT_REWARDS)
+        check_choice("action_type", config.action_type, ACTION_TYPES)
+        if config.action_type == "collect" and config.task != "goal":
+            raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
+        if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:
+            raise ValueError("timestep must be > 0; substeps, solver_iterations and ls_iterations >= 1")
 
     def load_model(self) -> mujoco.MjModel:
         model = super().load_model()

@@ -148,15 +148,15 @@ class KitchenEnv(Env):
     xml_path = Path(__file__).parent / "xmls" / "kitchen.xml"
     render_camera = {"lookat": (-0.4, 0.45, 1.95), "distance": 2.3, "azimuth": 112.0, "elevation": -28.0}
 
+    def check_config(self, config: KitchenConfig) -> None:
+        check_choice("integrator", config.integrator, INTEGRATORS)
+        check_choice("posture_targets", config.posture_targets, tasks.POSTURE_TARGETS)
+        check_choice("stillness", config.stillness, STILLNESS_TESTS)
+        check_choice("all_tasks_reward", config.all_tasks_reward, ALL_TASKS_REWARDS)
+        if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
+            raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
+
     def __init__(self, config: KitchenConfig | None = None, physics: str | None = None):
-        config = config if config is not None else KitchenConfig()
-        if isinstance(config, KitchenConfig):
-            check_choice("integrator", config.integrator, INTEGRATORS)
-            check_choice("posture_targets", config.posture_targets, tasks.POSTURE_TARGETS)
-            check_choice("stillness", config.stillness, STILLNESS_TESTS)
-            check_choice("all_tasks_reward", config.all_tasks_reward, ALL_TASKS_REWARDS)
-            if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
-                raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
         super().__init__(config, physics)
         m = self.mj_model
         qpos_index, obs_index = [], []
