@@ -1,18 +1,8 @@
-"""TALAR on FrankaKitchen: ``python -m experiments.kitchen --seeds 5`` (``--quick`` for a smoke run, ``--help``).
+"""TALAR on FrankaKitchen: ``python -m experiments.kitchen --seeds 5`` (``--quick`` for a smoke run, ``--help``)."""
 
-``run_command(argv)`` is the command for Python callers: it returns the run's summary (bad input raises
-``experiments.cli.UsageError``).
-"""
+from experiments.pipeline import env_command
 
-from functools import partial
-
-from experiments.cli import command
-from experiments.config import default_config
-from experiments.pipeline import run_command as run_pipeline
-
-DEFAULT = default_config("kitchen")
-run_command = partial(run_pipeline, "kitchen")
-main = command(run_command, resumes=True)
+DEFAULT, run_command, main = env_command("kitchen")
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -11,11 +11,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import envs
-from experiments.cli import check_outputs, checked, parse
+from experiments.cli import check_outputs, checked, command, parse
 from experiments.config import KEY_EXCLUDED_FIELDS, ExperimentConfig, default_config, make_env, resolve, run_name
 from experiments.lock import hold
 from experiments.methods import MethodContext, MethodSetup, get_method
@@ -194,3 +196,13 @@ def run_command(env: str, argv: list[str] | None = None) -> dict[str, Any]:
     config = checked_config(config)
     with hold(config.out):
         return run(config)
+
+
+def env_command(
+    env: str,
+) -> tuple[ExperimentConfig, Callable[[list[str] | None], dict[str, Any]], Callable[[list[str] | None], int]]:
+    """What the module ``experiments.<env>`` holds: ``DEFAULT``, the env's default config; ``run_command(argv)``,
+    the command for Python callers (``run_command`` above for ``env``: it returns the run's summary, bad input
+    raises ``experiments.cli.UsageError``); and ``main(argv)``, the command line, which returns the exit status."""
+    run_env = partial(run_command, env)
+    return default_config(env), run_env, command(run_env, resumes=True)
