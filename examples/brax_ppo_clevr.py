@@ -62,28 +62,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def train(env, timesteps: int, seed: int, progress):
-    """Brax's PPO on ``env`` (``progress(step, metrics)`` after each evaluation); returns (make_policy, params)."""
+def train(
+    env,
+    timesteps: int,
+    seed: int,
+    progress,
+    *,
+    num_envs: int = 256,
+    hidden: tuple[int, ...] = (256, 256),
+    num_minibatches: int = 8,
+    num_updates_per_batch: int = 4,
+    num_evals: int = 11,
+):
+    """Brax's PPO on ``env`` (``progress(step, metrics)`` after each evaluation); returns (make_policy, params).
+
+    The keyword defaults are the recorded run's; tests/test_brax_ppo.py trains a tiny one with smaller values.
+    ``num_envs`` also sets the batch size and the evaluation envs; ``hidden`` is both networks' hidden layers.
+    """
     network_factory = functools.partial(
-        ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(256, 256), value_hidden_layer_sizes=(256, 256)
+        ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=hidden, value_hidden_layer_sizes=hidden
     )
     make_policy, params, _ = ppo.train(
         environment=env,
         num_timesteps=timesteps,
         episode_length=env.episode_length,
         wrap_env_fn=envs.wrap_for_brax_training,
-        num_envs=256,
-        batch_size=256,
-        num_minibatches=8,
+        num_envs=num_envs,
+        batch_size=num_envs,
+        num_minibatches=num_minibatches,
         unroll_length=10,
-        num_updates_per_batch=4,
+        num_updates_per_batch=num_updates_per_batch,
         learning_rate=3e-4,
         entropy_cost=1e-2,
         discounting=0.97,
         reward_scaling=0.1,
         normalize_observations=True,
-        num_evals=11,
-        num_eval_envs=256,
+        num_evals=num_evals,
+        num_eval_envs=num_envs,
         network_factory=network_factory,
         progress_fn=progress,
         seed=seed,
