@@ -171,6 +171,16 @@ class Env(abc.ABC):
     def step(self, state: State, action: jax.Array) -> State:
         """Applies ``action`` and returns the next state (see ``check_action`` for what is checked where)."""
 
+    def retarget(self, state: State, goal: jax.Array | int | str) -> State:
+        """``state`` pursuing ``goal`` from now on, without a reset: the physics is untouched, the task's goal
+        fields, the goal part of ``obs`` and the goal's metrics are those a reset into this very scene would give
+        (``reward`` and ``done`` 0). Pure, jit- and vmap-able, like ``reset``; ``goal`` as ``reset`` takes it (a
+        traced goal out of range gives NaN ``obs`` and ``reward``). Used to run a chain of goals in one episode.
+
+        Envs without a goal choice (``clevr-arrangement``, ``kitchen-all``) and envs that do not implement it
+        raise ``NotImplementedError``."""
+        raise NotImplementedError(f"{type(self).__name__} cannot give a running episode a new goal (no retarget)")
+
     def render(self, qpos: np.ndarray, width: int = 320, height: int = 240) -> list[np.ndarray]:
         """(T, nq) physics positions (e.g. ``state.data.qpos`` along an episode) -> T RGB frames (uint8).
 

@@ -60,6 +60,7 @@ class Wrapper(Env):
     goal_names = _read_through("goal_names")
     goal_id = _read_through("goal_id")
     goal_out_of_range = _read_through("goal_out_of_range")
+    retarget = _read_through("retarget")
     goal_feature_size = _read_through("goal_feature_size")
     goal_features = _read_through("goal_features")
     state_observation_size = _read_through("state_observation_size")
@@ -114,6 +115,12 @@ class EpisodeWrapper(Wrapper):
         done = jnp.where(timed_out, 1.0, state.done).astype(jnp.float32)
         info = {**state.info, "steps": steps, "truncation": truncation}
         return state.replace(reward=reward, done=done, info=info)
+
+    def retarget(self, state: State, goal: jax.Array | int | str) -> State:
+        """The wrapped env's ``retarget``; a new goal starts a new time limit (``steps`` back to 0)."""
+        state = self.env.retarget(state, goal)
+        info = {**state.info, "steps": jnp.zeros((), jnp.int32), "truncation": jnp.zeros((), jnp.float32)}
+        return state.replace(info=info)
 
 
 class AutoResetWrapper(Wrapper):

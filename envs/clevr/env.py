@@ -232,6 +232,33 @@ class ClevrEnv(Env):
         stepped = state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
         return self.flag_out_of_range(stepped, out_of_range)
 
+    def retarget(self, state: State, goal: jax.Array | int | str) -> State:
+        """``state`` pursuing ``goal`` from now on (see ``Env.retarget``): the goal, its source and reference balls
+        and its relation change, and the episode start becomes the balls' current positions (``start_xy``, what
+        ``fail_on_displacement`` measures from, and the dense reward's distance), as if a reset had laid the balls
+        out as they are now; ball and pusher velocities are kept. The arrangement task has no goal to change."""
+        if self._arrangement:
+            raise NotImplementedError("the arrangement task has one fixed goal: it has no goal to retarget")
+        goal = self.goal_id(goal)
+        if goal is None:
+            raise ValueError("retarget needs a goal (an id or a goal name)")
+        out_of_range = self.goal_out_of_range(goal)
+        goal = jnp.asarray(goal, jnp.int32)
+        ball_xy = state.data.qpos[: self.state_observation_size].reshape(tasks.NUM_BALLS, 2)
+        task = ClevrTask(
+            goal=goal,
+            source=jnp.asarray(tasks.GOAL_SOURCE)[goal],
+            destination=jnp.asarray(tasks.GOAL_DESTINATION)[goal],
+            relation=jnp.asarray(tasks.GOAL_RELATION)[goal],
+            start_xy=ball_xy,
+            distance=tasks.goal_distance(ball_xy, goal),
+        )
+        zero = jnp.zeros((), jnp.float32)
+        metrics = self._metrics(ball_xy, task, zero, zero)
+        obs = self.observe_goal(ball_xy.reshape(-1), task)
+        retargeted = state.replace(obs=obs, reward=zero, done=zero, metrics=metrics, task=task)
+        return self.flag_out_of_range(retargeted, out_of_range)
+
     def _metrics(self, ball_xy: jax.Array, task: ClevrTask, success: jax.Array, failure: jax.Array) -> dict:
         if self._arrangement:
             num_satisfied = jnp.sum(tasks.arrangement_satisfied(ball_xy)).astype(jnp.float32)

@@ -327,6 +327,28 @@ class KitchenEnv(Env):
             task=new_task,
         )
 
+    def retarget(self, state: State, goal: jax.Array | int | str) -> State:
+        """``state`` pursuing sub-task ``goal`` from now on (see ``Env.retarget``): the goal id and the goal part of
+        the observation change; the physics, the last noisy observation, each sub-task's distance and the sub-tasks
+        completed so far are kept, so the next step's reward measures progress on the new goal from where it stands.
+        From a reset state it gives what ``reset`` with that goal gives. ``kitchen-all`` has no goal to change."""
+        if self.config.all_tasks:
+            raise NotImplementedError("kitchen-all pursues every sub-task at once: it has no goal to retarget")
+        goal = self.goal_id(goal)
+        if goal is None:
+            raise ValueError("retarget needs a goal (an id or a sub-task name)")
+        out_of_range = self.goal_out_of_range(goal)
+        task = state.task.replace(goal=jnp.asarray(goal, jnp.int32))
+        zero = jnp.zeros((), jnp.float32)
+        metrics = {
+            "success": zero,
+            "distance": self._goal_distance(task, task.distance),
+            "num_completed": jnp.sum(task.completed),
+        }
+        obs = self.observe_goal(state.obs[: tasks.OBSERVATION_SIZE], task)
+        retargeted = state.replace(obs=obs, reward=zero, done=zero, metrics=metrics, task=task)
+        return self.flag_out_of_range(retargeted, out_of_range)
+
     def _true_progress(self, qpos_before: jax.Array, qpos_after: jax.Array, goal: jax.Array) -> jax.Array | None:
         """The goal's noise-free progress over a step when ``stillness='true'``, else None (the observed one)."""
         if self.config.stillness == "observed":
