@@ -107,6 +107,8 @@ SHIPPED_AGENTS_DIR = Path(__file__).parent / "agents"
 """Agents shipped with the package, one folder each (``experiments.ship`` writes them): a run folder cut down to one
 seed, its policy in ``POLICY_FILE`` instead of orbax checkpoints, and ``SHIPPED_RECORD`` saying where it came from."""
 POLICY_FILE = "policy.msgpack"
+GENERATOR_FILE = "task_language/params.msgpack"
+"""TALAR's TL generator (and receiver), seed-stacked, in a method folder: what ``Agent.task_language`` reads."""
 SHIPPED_RECORD = "shipped.json"
 CONFIG_FILE = "config.json"
 CONFIDENCE_FILE = "confidence.json"
@@ -619,6 +621,38 @@ class Agent:
     ) -> np.ndarray:
         """(E,) success of one episode per (code, goal) row, all episodes vmapped in one call."""
         return self.episodes(codes, goals, rng, deterministic)[-1]
+
+    # --- the task language generator ---------------------------------------------------------------------------
+    @property
+    def generator_params(self) -> Any | None:
+        """This seed's TL generator parameters (TALAR's referential-game stage, ``GENERATOR_FILE`` of the run; a
+        shipped agent carries them only where they were recovered), or None when the run has none: then the task
+        language cannot tell whether a sub-task was done (``task_language``)."""
+        if not hasattr(self, "_generator_params"):
+            path = self.folder / GENERATOR_FILE
+            if self.method != "talar" or "talar" not in self.config or not path.is_file():
+                self._generator_params = None
+            else:
+                tree = _read_tree(path, self.folder, path.parent)
+                if "generator" not in tree:
+                    raise _damaged(path, "no generator parameters", self.folder, path.parent)
+                self._generator_params = jax.tree.map(lambda x: np.asarray(x)[self.seed], tree["generator"])
+        return self._generator_params
+
+    def task_language(self, states: jax.Array, final_states: jax.Array) -> jax.Array:
+        """(..., code_size) the TL generator's deterministic code of the change ``states -> final_states`` (env
+        observations without a goal part): the code the translator learnt to give an instruction of what that
+        change did. Pure JAX (jit / vmap it); ``AgentError`` when the run has no generator (``generator_params``)."""
+        from talar_jax.task_language import TaskLanguageGenerator, TaskLanguageSpec
+
+        params = self.generator_params
+        if params is None:
+            raise AgentError(f"the run in {self.folder} has no task-language generator ({GENERATOR_FILE})")
+        talar = self.config["talar"]
+        generator = TaskLanguageGenerator(
+            TaskLanguageSpec(**talar["spec"]), tuple(talar["generator_hidden"]), float(talar["gumbel_temperature"])
+        )
+        return generator.apply(params, jnp.asarray(states, jnp.float32), jnp.asarray(final_states, jnp.float32), None)
 
 
 def load(run_dir: str | Path, seed: int = 0, physics: str | None = None) -> Agent:
