@@ -120,6 +120,53 @@ def test_a_retarget_through_the_episode_wrapper_starts_a_new_time_limit():
     assert int(moved.info["steps"]) == 0 and int(moved.task.goal) == 9
 
 
+# --- starting from the scenes a chain leaves ------------------------------------------------------------------
+def test_kitchen_others_done_start_sets_other_sub_tasks_done_and_keeps_the_goal_draw():
+    keys = jax.random.split(jax.random.key(0), 16)
+
+    def resets(**options):
+        env = envs.make("kitchen", physics="c", **options)
+        return jax.jit(jax.vmap(env.reset))(keys)
+
+    today = resets()
+    assert_trees_equal(resets(start="others_done", start_done_probability=0.0), today)
+    everything = resets(start="others_done", start_done_probability=1.0)
+    np.testing.assert_array_equal(everything.task.goal, today.task.goal)
+    done = np.asarray(everything.task.distance) < 0.3
+    goal_done = done[np.arange(16), np.asarray(everything.task.goal)]
+    assert not goal_done.any() and done.sum(1).tolist() == [5] * 16
+    half = np.asarray(resets(start="others_done").task.distance) < 0.3
+    assert 0 < half.sum() < 5 * 16
+    np.testing.assert_array_equal(everything.obs[:, :9], today.obs[:, :9])  # the arm starts where it always does
+
+
+def test_clevr_after_goal_start_moves_one_ball_beside_another():
+    keys = jax.random.split(jax.random.key(0), 16)
+    today = jax.jit(jax.vmap(envs.make("clevr", physics="c").reset))(keys)
+    env = envs.make("clevr", physics="c", start="after_goal")
+    after = jax.jit(jax.vmap(lambda key: env.reset(key, 17)))(keys)
+    before_xy, after_xy = (np.asarray(s.obs).reshape(-1, 5, 2) for s in (today, after))
+    same_draw = np.asarray(jax.jit(jax.vmap(lambda key: env.reset(key)))(keys).obs).reshape(-1, 5, 2)
+    moved = (np.abs(same_draw - before_xy) > 0).any(-1).sum(1)
+    assert set(moved.tolist()) <= {0, 1} and moved.sum() > 8  # one ball moved in most scenes, the rest as drawn
+    gaps = np.linalg.norm(after_xy[:, :, None] - after_xy[:, None], axis=-1) + 9 * np.eye(5)
+    assert gaps.min() >= 0.3 - 1e-6
+    assert not any(bool(clevr_tasks.goal_success(xy, 17)) for xy in after_xy)  # the episode's own goal still to do
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "message"),
+    [
+        ("kitchen", {"start": "anywhere"}, "start"),
+        ("kitchen", {"start_done_probability": 1.5}, "start_done_probability"),
+        ("clevr", {"start": "others_done"}, "start"),
+    ],
+)
+def test_start_options_are_checked(name, options, message):
+    with pytest.raises(ValueError, match=message):
+        envs.make(name, physics="c", **options)
+
+
 # --- ChainResult ----------------------------------------------------------------------------------------------
 def test_chain_result_counts_clauses_in_a_row_as_calvin_does():
     reached = np.array([[3, 9, 20], [4, -1, -1], [-1, -1, -1], [2, 5, -1]])

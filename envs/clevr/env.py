@@ -20,6 +20,10 @@ against: the reference of the tests and of the original-style benchmark, never s
 
 TASK_KINDS: tuple[str, ...] = ("goal", "arrangement")
 ACTION_TYPES: tuple[str, ...] = ("discrete", "collect")
+START_STATES: tuple[str, ...] = ("reset", "after_goal")
+AFTER_GOAL_DISTANCE = 0.3
+"""``start='after_goal'``: the centre distance at which the other goal's source ball is set beside its reference ball
+(more than two radii, 0.26, so the balls do not overlap; less than the success distance, 0.39)."""
 _PUSHER_QPOS = slice(2 * tasks.NUM_BALLS, 2 * tasks.NUM_BALLS + 2)  # pusher x, y in the lean model's qpos
 
 
@@ -47,6 +51,11 @@ class ClevrConfig(EnvConfig):
     """Newton solver iterations (original: 20; 1 to 20 agree within 1 mm on this model, see xmls/clevr.xml)."""
     ls_iterations: int = 4
     """Solver line-search iterations."""
+    start: str = "reset"
+    """Goal task: where an episode starts. 'reset' (balls drawn at random: the original's and TALAR's) or 'after_goal'
+    (the same draw, then a random goal made to hold, as a chain's earlier goal leaves the balls: its source ball set
+    beside its reference ball on the goal's side; goals are tried in random order until that spot is on the table
+    and clear of the other balls)."""
 
 
 @struct.dataclass
@@ -97,6 +106,7 @@ class ClevrEnv(Env):
         check_choice("task", config.task, TASK_KINDS)
         check_choice("arrangement_reward", config.arrangement_reward, tasks.ARRANGEMENT_REWARDS)
         check_choice("action_type", config.action_type, ACTION_TYPES)
+        check_choice("start", config.start, START_STATES)
         if config.action_type == "collect" and config.task != "goal":
             raise ValueError("action_type='collect' pushes the goal's source ball: it needs task='goal'")
         if config.timestep <= 0 or config.substeps < 1 or config.solver_iterations < 1 or config.ls_iterations < 1:
@@ -163,7 +173,7 @@ class ClevrEnv(Env):
         goal = self.goal_id(goal)
         out_of_range = self.goal_out_of_range(goal)
         rng_balls, rng_goal = jax.random.split(rng)
-        ball_xy = tasks.sample_ball_positions(rng_balls)
+        ball_xy = self._draw_balls(rng_balls)
         if goal is not None and not self._arrangement:
             goal = jnp.asarray(goal, jnp.int32)
 
@@ -172,7 +182,7 @@ class ClevrEnv(Env):
 
             def redraw(carry):
                 key, sub = jax.random.split(carry[0])
-                return key, tasks.sample_ball_positions(sub), carry[2] + 1
+                return key, self._draw_balls(sub), carry[2] + 1
 
             _, ball_xy, _ = jax.lax.while_loop(already_met, redraw, (rng_goal, ball_xy, jnp.int32(0)))
         qpos = jnp.zeros(self.mj_model.nq, jnp.float32).at[: self.state_observation_size].set(ball_xy.reshape(-1))
@@ -232,6 +242,15 @@ class ClevrEnv(Env):
         stepped = state.replace(data=data, obs=obs, reward=reward, done=done, metrics=metrics, task=task)
         return self.flag_out_of_range(stepped, out_of_range)
 
+    def _draw_balls(self, rng: jax.Array) -> jax.Array:
+        """(5, 2) a scene at reset: ``tasks.sample_ball_positions`` ('reset'), then with 'after_goal' a random goal
+        made to hold (``after_goal``), with a key derived from ``rng`` so that the balls are the 'reset' ones first."""
+        ball_xy = tasks.sample_ball_positions(rng)
+        if self.config.start == "after_goal" and not self._arrangement:
+            candidates = jax.random.permutation(jax.random.fold_in(rng, 1), tasks.NUM_GOALS)
+            ball_xy = after_goal(ball_xy, candidates)
+        return ball_xy
+
     def retarget(self, state: State, goal: jax.Array | int | str) -> State:
         """``state`` pursuing ``goal`` from now on (see ``Env.retarget``): the goal, its source and reference balls
         and its relation change, and the episode start becomes the balls' current positions (``start_xy``, what
@@ -264,3 +283,20 @@ class ClevrEnv(Env):
             num_satisfied = jnp.sum(tasks.arrangement_satisfied(ball_xy)).astype(jnp.float32)
             return {"success": success, "num_satisfied": num_satisfied}
         return {"success": success, "failure": failure, "distance": task.distance}
+
+
+def after_goal(ball_xy: jax.Array, goals: jax.Array) -> jax.Array:
+    """(5, 2) ``ball_xy`` with the first goal of ``goals`` (K,) that fits made to hold: its source ball at
+    ``AFTER_GOAL_DISTANCE`` from its reference ball, on the goal's side. A goal fits when that spot lies in the
+    reachable region and at least ``tasks.MIN_SEPARATION`` from the other balls; with none fitting, ``ball_xy``."""
+    parts = (jnp.asarray(t)[goals] for t in (tasks.GOAL_SOURCE, tasks.GOAL_DESTINATION, tasks.GOAL_RELATION))
+    source, destination, relation = parts
+    spots = ball_xy[destination] + AFTER_GOAL_DISTANCE * jnp.asarray(tasks.RELATION_VECTORS)[relation]  # (K, 2)
+    balls = jnp.arange(tasks.NUM_BALLS)
+    others = (balls != source[:, None]) & (balls != destination[:, None])  # (K, 5)
+    far = jnp.linalg.norm(ball_xy[None] - spots[:, None], axis=-1) >= tasks.MIN_SEPARATION
+    clear = jnp.all(far | ~others, axis=1)
+    inside = jnp.all((spots >= tasks.REGION_LOW) & (spots <= tasks.REGION_HIGH), axis=1)
+    fits = clear & inside
+    first = jnp.argmax(fits)
+    return jnp.where(jnp.any(fits), ball_xy.at[source[first]].set(spots[first]), ball_xy)

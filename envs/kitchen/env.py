@@ -16,6 +16,7 @@ from envs.kitchen import tasks
 
 INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
 ALL_TASKS_REWARDS: tuple[str, ...] = ("new", "count")
+START_STATES: tuple[str, ...] = ("reset", "others_done")
 STILLNESS_TESTS: tuple[str, ...] = ("observed", "true")
 
 # Clip bounds of the servo targets (the original robot config's ``pos_bound``; note joint 6's [0, 3.8]).
@@ -98,6 +99,12 @@ class KitchenConfig(EnvConfig):
     hinge_cabinet_task: bool = False
     """Add D4RL's 'hinge cabinet' (open the right door to 1.45 rad) as a seventh sub-task, goal id 6: sampled at reset
     in ``kitchen``, required in ``kitchen-all``. TALAR's six stay the default (its instructions name six)."""
+    start: str = "reset"
+    """Where an episode starts: 'reset' (the fixed initial state: TALAR's protocol) or 'others_done' (the same, with
+    each sub-task other than the episode's goal already done with probability ``start_done_probability``: its object
+    at its goal values, as earlier sub-tasks of a chain leave the kitchen). The goal is drawn as under 'reset'."""
+    start_done_probability: float = 0.5
+    """With ``start='others_done'``: the probability that each other sub-task starts done."""
 
 
 @struct.dataclass
@@ -153,6 +160,9 @@ class KitchenEnv(Env):
         check_choice("posture_targets", config.posture_targets, tasks.POSTURE_TARGETS)
         check_choice("stillness", config.stillness, STILLNESS_TESTS)
         check_choice("all_tasks_reward", config.all_tasks_reward, ALL_TASKS_REWARDS)
+        check_choice("start", config.start, START_STATES)
+        if not 0.0 <= config.start_done_probability <= 1.0:
+            raise ValueError(f"start_done_probability must lie in [0, 1], got {config.start_done_probability}")
         if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
             raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
 
@@ -268,6 +278,12 @@ class KitchenEnv(Env):
             goal = tasks.sample_goal(rng_goal, distance)
         else:
             goal = jnp.asarray(goal, jnp.int32)
+        if self.config.start == "others_done":
+            # a key of its own, derived, so that the 'reset' start draws exactly what it always drew
+            done = self.others_done(jax.random.fold_in(rng_goal, 1), goal)
+            data = self.physics.init(self.qpos_with_done(done))
+            obs = self._observe(data.qpos, rng_obs)
+            distance = tasks.task_distances(obs, self._num_tasks)
         task = KitchenTask(
             goal=goal,
             completed=jnp.zeros(self._num_tasks, jnp.float32),
@@ -326,6 +342,20 @@ class KitchenEnv(Env):
             metrics=metrics,
             task=new_task,
         )
+
+    def others_done(self, rng: jax.Array, goal: jax.Array) -> jax.Array:
+        """(num_goals,) bool: the sub-tasks other than ``goal`` that start done (``start='others_done'``), each with
+        probability ``start_done_probability`` (``goal`` -1, ``kitchen-all``: any sub-task)."""
+        others = jnp.arange(self._num_tasks) != goal
+        return jax.random.bernoulli(rng, self.config.start_done_probability, (self._num_tasks,)) & others
+
+    def qpos_with_done(self, done: jax.Array) -> jax.Array:
+        """(nq,) the reset joint positions with the objects of the ``done`` sub-tasks at their goal values."""
+        mask = jnp.asarray(tasks.TASK_MASK[: self._num_tasks])
+        at_goal = (done.astype(jnp.float32) @ mask) > 0.5  # (30,) observation entries of the done sub-tasks
+        goal_obs = jnp.asarray(tasks.TASK_GOAL[: self._num_tasks]).sum(0)  # the sub-tasks' entries do not overlap
+        obs = jnp.where(at_goal, goal_obs, jnp.asarray(tasks.INIT_OBS))
+        return jnp.asarray(self._init_qpos).at[self._qpos_index].set(obs[self._obs_index])
 
     def retarget(self, state: State, goal: jax.Array | int | str) -> State:
         """``state`` pursuing sub-task ``goal`` from now on (see ``Env.retarget``): the goal id and the goal part of
