@@ -32,6 +32,10 @@ from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError
 from talar_jax.chains import ADVANCE_ON, ChainResult, run_chains
 
+TRANSITION_GOALS = 10
+"""Envs with at most this many goals (the kitchen's six sub-tasks, not CLEVR's 80) get the table of clauses reached by
+the sub-task before and their own."""
+
 
 @dataclasses.dataclass(frozen=True)
 class ChainsArgs:
@@ -115,11 +119,15 @@ def measure(
     return results, seconds
 
 
-def record(measured: tuple[dict[str, ChainResult], dict[str, float]]) -> dict[str, Any]:
-    """JSON of one seed's chains: the env test's CALVIN numbers, the TL test's and the two tests' agreement."""
+def record(measured: tuple[dict[str, ChainResult], dict[str, float]], num_goals: int) -> dict[str, Any]:
+    """JSON of one seed's chains: the env test's CALVIN numbers, the TL test's and the two tests' agreement, and
+    for envs of at most ``TRANSITION_GOALS`` goals the clauses begun and reached by the goal before and their own."""
     results, seconds = measured
     env = results["env"]
     out: dict[str, Any] = {**env.summary(), "budget": env.budget, "seconds": seconds}
+    if num_goals <= TRANSITION_GOALS:
+        begun, reached = env.transitions(num_goals)
+        out["transitions"] = {"begun": begun.tolist(), "reached": reached.tolist()}
     if "language" in results:
         language = results["language"]
         out["language"] = {
@@ -148,6 +156,18 @@ def table(rows: list[tuple[str, dict[str, Any]]], length: int) -> str:
         for name, rates, average in tests:
             shown = " | ".join(f"{100 * rate:.1f} %" for rate in rates)
             lines.append(f"| {seed} | {name} | {shown} | {average:.3f} |")
+    return "\n".join(lines)
+
+
+def transition_table(numbers: dict[str, Any], names: tuple[str, ...]) -> str:
+    """Markdown table: the share of begun clauses reached, by the sub-task before (rows; "(reset)": a chain's first
+    clause) and the clause's own (columns), in the chains moved on by the env's test."""
+    begun, reached = (np.asarray(numbers["transitions"][k]) for k in ("begun", "reached"))
+    names = names[: begun.shape[1]]
+    lines = ["| before \\ then | " + " | ".join(names) + " |", "|" + "---|" * (len(names) + 1)]
+    for row, before in enumerate([*names, "(reset)"]):
+        cells = [f"{100 * r / b:.0f} % of {b}" if b else "-" for b, r in zip(begun[row], reached[row], strict=True)]
+        lines.append(f"| {before} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -180,15 +200,24 @@ def chains(args: ChainsArgs) -> dict[str, Any]:
     per_seed, all_rows = [], []
     for agent in agents:
         key = jax.random.fold_in(jax.random.key(args.rng_seed), agent.seed)
-        numbers = record(measure(agent, goals, clause_codes(agent, sentences), key, args))
+        numbers = record(measure(agent, goals, clause_codes(agent, sentences), key, args), agent.env.num_goals)
         per_seed.append((agent.seed, numbers))
         if everything is not None:
             all_goals, all_sentences = everything
             codes = clause_codes(agent, all_sentences)
-            all_rows.append((agent.seed, record(measure(agent, all_goals, codes, jax.random.fold_in(key, 1), args))))
+            all_rows.append(
+                (
+                    agent.seed,
+                    record(measure(agent, all_goals, codes, jax.random.fold_in(key, 1), args), agent.env.num_goals),
+                )
+            )
     print(table(per_seed, args.length))
     for seed, numbers in per_seed:
         print(f"seed {seed}: {agreement_line(numbers)}")
+    if first.env.num_goals <= TRANSITION_GOALS:
+        for seed, numbers in per_seed:
+            print(f"\nseed {seed}: clauses reached, by the sub-task before and the clause's own (env's test)")
+            print(transition_table(numbers, first.env.goal_names))
     if all_rows:
         print(f"\nthe chain of all {len(phrasings)} sub-tasks, {all_chains} chains:")
         print(table(all_rows, len(phrasings)))
@@ -199,7 +228,7 @@ def chains(args: ChainsArgs) -> dict[str, Any]:
         print(f"time, seed {seed}: {args.chains} chains of {args.length}: {spent} (compile included)")
     out = {
         **{k: v for k, v in per_seed[0][1].items() if k in ("length", "chains", "success_at", "average_length")},
-        "run": str(first.folder),
+        "run": str(args.run_dir),
         "env": first.env_name,
         "budget": budget,
         "seeds": {str(seed): numbers for seed, numbers in per_seed},

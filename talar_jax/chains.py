@@ -96,6 +96,18 @@ class ChainResult:
         reached = self.reached_step >= 0
         return np.concatenate([np.ones_like(reached[:, :1]), reached[:, :-1]], axis=1)
 
+    def transitions(self, num_goals: int) -> tuple[np.ndarray, np.ndarray]:
+        """(begun, reached): (num_goals + 1, num_goals) counts of begun clauses and of those reached, by the goal of
+        the clause before (row num_goals: a chain's first clause, from the reset state) and the clause's own goal:
+        which sub-task a policy fails to do after which."""
+        begun = np.zeros((num_goals + 1, num_goals), np.int64)
+        reached = np.zeros_like(begun)
+        before = np.concatenate([np.full_like(self.goals[:, :1], num_goals), self.goals[:, :-1]], axis=1)
+        mask = self.attempted
+        np.add.at(begun, (before[mask], self.goals[mask]), 1)
+        np.add.at(reached, (before[mask], self.goals[mask]), (self.reached_step >= 0)[mask].astype(np.int64))
+        return begun, reached
+
     def agreement(self) -> dict[str, float] | None:
         """How often the two tests tell the same about the begun clauses: ``reached`` (both saw the sub-task done
         during the clause's time, or neither did), ``same_step`` (both first saw it at the same step, or neither

@@ -1,5 +1,6 @@
 """Chains of sub-tasks in one episode: ``Env.retarget``, ``talar_jax.chains`` and ``experiments.chains``."""
 
+import dataclasses
 import json
 
 import jax
@@ -185,6 +186,11 @@ def test_chain_result_counts_clauses_in_a_row_as_calvin_does():
     no_language = ChainResult(np.zeros((4, 3), np.int32), reached, env_step, language * 0 - 1, "env", False, 50)
     assert no_language.agreement() is None
     np.testing.assert_array_equal(result.confirmed, result.completed)
+    goals = np.array([[0, 1, 2], [1, 0, 2], [2, 1, 0], [0, 2, 1]])
+    begun, reached = dataclasses.replace(result, goals=goals).transitions(3)
+    # row 3: first clauses (from the reset); chain 1 failed 0 after 1, chain 2 its first clause (2), chain 3 1 after 2
+    np.testing.assert_array_equal(begun, [[0, 1, 1], [1, 0, 1], [0, 1, 0], [2, 1, 1]])
+    np.testing.assert_array_equal(reached, [[0, 1, 1], [0, 0, 1], [0, 0, 0], [2, 1, 0]])
 
 
 # --- run_chains with a scripted policy --------------------------------------------------------------------------
