@@ -73,7 +73,9 @@ def _fills(label: str, task: dict) -> list[tuple[str, tuple[str, str] | str, boo
     out = []
     for frame_half, frame_list in frames.items():
         for frame in frame_list:
-            phrases = (task["done"] if label == "positive" else task["undone"]) if "{state}" in frame else verbs
+            # a state frame names the state the sentence is about: the task done for "Leave {state}." (positive) and
+            # "Don't leave {state}." (negated), undone for the opposite's "Leave {state}."
+            phrases = (task["undone"] if label == "opposite" else task["done"]) if "{state}" in frame else verbs
             for phrase_half, phrase_list in phrases.items():
                 held = "held_out" in (frame_half, phrase_half)
                 out += [(frame, tuple(p) if isinstance(p, list) else p, held) for p in phrase_list]
@@ -100,11 +102,14 @@ def polarity_set(env: str) -> PolaritySet:
     for split, held in (("train", False), ("test", True)):
         instructions = load_instructions(env, split)
         rows += [(s, 0, int(g), held) for s, g in zip(instructions.sentences, instructions.goal_ids, strict=True)]
+    trained = set(load_instructions(env, "train").sentences)
     unique = {}
-    for row in rows:  # a sentence made twice keeps its first label; both halves: held out
-        first = unique.setdefault(row[0], row)
-        if row[3] and not first[3]:
+    for row in rows:  # a sentence made twice keeps its first label; both halves: held out, but for a training
+        first = unique.setdefault(row[0], row)  # instruction (the agent itself was trained on it)
+        if row[3] and not first[3] and row[0] not in trained:
             unique[row[0]] = (*first[:3], True)
+        elif row[0] in trained and first[3]:
+            unique[row[0]] = (*first[:3], False)
     sentences, labels, goals, held_out = zip(*unique.values(), strict=True)
     return PolaritySet(env, sentences, np.array(labels, np.int32), np.array(goals, np.int32), np.array(held_out))
 
@@ -145,3 +150,13 @@ def _filled(text: str, slots: dict[str, str]) -> str:
     for slot, word in slots.items():
         text = text.replace(slot, word)
     return text
+
+
+def task_verb_phrases(env: str, goal: int, undo: bool = False, held_out: bool = False) -> list[tuple[str, str]]:
+    """The polarity sets' ``[base, gerund]`` verb phrases that do (``undo=False``) or undo ``goal`` in one half, for
+    building sentences around a task (the compound instructions)."""
+    if env == "clevr":
+        phrases = _ingredients()["clevr"]["undo" if undo else "do"]["held_out" if held_out else "train"]
+        return [(_filled(base, clevr_slots()[goal]), _filled(gerund, clevr_slots()[goal])) for base, gerund in phrases]
+    task = _ingredients()[env][kitchen_goal_names()[goal]]
+    return [tuple(p) for p in task["undo" if undo else "do"]["held_out" if held_out else "train"]]
