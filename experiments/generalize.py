@@ -12,7 +12,10 @@ episodes' goals and random keys, so their success rates are paired.
 Every sentence also gets the agent's verdict (``talar_jax.confidence``: understood, ambiguous or not understood,
 calibrated by the run's ``confidence.json``): beside plain agreement and success, each set reports its coverage (the
 share of its sentences the agent acts on), the accuracy among those (the verdict's goal is the sentence's) and the
-success of the paired episodes whose sentence it acts on. Your sentences are listed one by one (``--json``, and the
+success of the paired episodes whose sentence it acts on. Risk against coverage: for each measure an agent could
+act on (its calibrated confidence, the familiarity alone, the ensemble posterior of the likeliest goal), acting on the
+sentences it ranks highest, the threshold that acts on a given share of a set and the error rate among those acted
+on, so that you can pick a threshold for your own sentences. Your sentences are listed one by one (``--json``, and the
 markdown table ``--markdown``): intended goal, decoded goal, confidence, verdict and, when the agent acts on it, the
 success of ``--sentence-episodes`` episodes on its intended goal.
 """
@@ -68,6 +71,52 @@ def instruction_sets(agent: Agent, instructions: Path) -> dict[str, tuple[np.nda
     return sets
 
 
+RISK_MEASURES: tuple[str, ...] = ("confidence", "familiarity", "posterior")
+"""The measures of the risk-coverage table: the verdict's calibrated confidence, the sentence's familiarity, and the
+ensemble posterior of its likeliest goal."""
+COVERAGES: tuple[float, ...] = (1.0, 0.9, 0.8, 0.5)
+
+
+def risk_coverage(scores, actable, right, coverages=COVERAGES) -> list[dict]:
+    """Acting on the sentences ``scores`` ranks highest among the ``actable`` ones (a decoded goal, asked for
+    positively): per target share of all sentences, the lowest score acted on (the threshold), the share acted on from
+    that threshold (ties may raise it; it stops at the actable share) and the risk: the share of those acted on that
+    are not ``right``. None where nothing is acted on."""
+    scores, actable, right = np.asarray(scores, float), np.asarray(actable, bool), np.asarray(right, bool)
+    candidates = np.flatnonzero(actable)
+    order = candidates[np.argsort(-scores[candidates], kind="stable")]
+    rows = []
+    for target in coverages:
+        count = min(int(round(target * len(scores))), len(order))
+        if count == 0:
+            rows.append({"target": target, "threshold": None, "coverage": 0.0, "risk": None})
+            continue
+        threshold = float(scores[order[count - 1]])
+        acted = actable & (scores >= threshold)
+        rows.append(
+            {
+                "target": target,
+                "threshold": threshold,
+                "coverage": float(acted.mean()),
+                "risk": float(1 - right[acted].mean()),
+            }
+        )
+    return rows
+
+
+def verdict_risk_coverage(verdicts, goals) -> dict[str, list[dict]]:
+    """``risk_coverage`` of each of ``RISK_MEASURES`` for one set's verdicts and intended goals: an agent acting on a
+    sentence pursues the goal its code decodes to, so it is right when that is the intended one."""
+    actable = [v.decoded is not None and v.polarity == "positive" for v in verdicts]
+    right = [v.decoded == goal for v, goal in zip(verdicts, goals, strict=True)]
+    scores = {
+        "confidence": [v.confidence for v in verdicts],
+        "familiarity": [v.familiarity for v in verdicts],
+        "posterior": [v.candidates[0][1] if v.candidates else 0.0 for v in verdicts],
+    }
+    return {measure: risk_coverage(scores[measure], actable, right) for measure in RISK_MEASURES}
+
+
 def evaluate_seed(
     agent: Agent, sets: dict, episodes: int, rng_seed: int, sentence_episodes: int = 0
 ) -> tuple[dict[str, dict[str, float]], list[dict]]:
@@ -96,6 +145,7 @@ def evaluate_seed(
             "accuracy_acted": float(right[acts].mean()) if acts.any() else None,
             "success_acted": float(success[acts[rows]].mean()) if acts[rows].any() else None,
             "verdicts": {v: int(sum(x.verdict == v for x in verdicts)) for v in VERDICTS},
+            "risk_coverage": verdict_risk_coverage(verdicts, sentence_goals),
         }
         if name == "yours":
             per_sentence = sentence_success(agent, codes, sentence_goals, acts, sentence_episodes, rng_seed)
@@ -154,6 +204,31 @@ def selective_report(per_seed: list[dict[str, dict[str, float]]]) -> str:
             values = [row[n][m] for row in per_seed if row[n][m] is not None]
             cells.append(f"{100 * np.mean(values):.1f}" if values else "–")
     lines.append("| mean | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def risk_coverage_report(per_seed: list[dict[str, dict]]) -> str:
+    """Markdown: per set, measure and target share, the threshold, the share acted on and the risk, means over seeds
+    (a seed with nothing acted on leaves the risk out of the mean)."""
+    lines = [
+        "| set | measure | target share | threshold (mean over seeds) | acted on | risk: wrong among acted |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for name in per_seed[0]:
+        for measure in RISK_MEASURES:
+            for index, target in enumerate(COVERAGES):
+                rows = [row[name]["risk_coverage"][measure][index] for row in per_seed]
+                thresholds = [r["threshold"] for r in rows if r["threshold"] is not None]
+                risks = [r["risk"] for r in rows if r["risk"] is not None]
+                cells = [
+                    name,
+                    measure,
+                    f"{100 * target:.0f}",
+                    f"{np.mean(thresholds):.3f}" if thresholds else "–",
+                    f"{100 * np.mean([r['coverage'] for r in rows]):.1f}",
+                    _pct(np.mean(risks)) if risks else "–",
+                ]
+                lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -220,6 +295,8 @@ def generalize(args: GeneralizeArgs) -> dict:
     print(table)
     print("selective (the agent acts only on the sentences it understood):\n")
     print(selective_report(per_seed))
+    print("risk against coverage (act on the sentences a measure ranks highest; in %):\n")
+    print(risk_coverage_report(per_seed))
     names = get_recipe(agent.env_name).goal_names()
     sentences_table = sentence_table(sets["yours"][2], per_sentence, names)
     if len(sets["yours"][2]) <= 60:
@@ -227,7 +304,9 @@ def generalize(args: GeneralizeArgs) -> dict:
     if args.markdown is not None:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
         args.markdown.write_text(
-            f"# {folder}: your sentences\n\n{table}\n{selective_report(per_seed)}\n{sentences_table}"
+            f"# {folder}: your sentences\n\n{table}\n{selective_report(per_seed)}\n"
+            f"Risk against coverage (act on the sentences a measure ranks highest; in %):\n\n"
+            f"{risk_coverage_report(per_seed)}\n{sentences_table}"
         )
         print(f"per-sentence table: {args.markdown}")
     yours = [

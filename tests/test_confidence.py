@@ -352,6 +352,26 @@ def test_generalize_reports_verdicts_per_sentence_and_selective_figures(run_copy
     table = markdown.read_text()
     assert "| sentence | intended goal | decoded goal | confidence | verdict | success when acted |" in table
     assert "understood 2/2" in table and "coverage" in capsys.readouterr().out
+    assert "| set | measure | target share |" in table
+    for row in result["per_seed"]:
+        for measure in generalize.RISK_MEASURES:
+            curve = row["yours"]["risk_coverage"][measure]
+            assert [r["target"] for r in curve] == list(generalize.COVERAGES)
+            assert curve[0]["coverage"] == 1.0 and all(r["coverage"] <= 1.0 for r in curve)
+
+
+def test_risk_coverage_acts_on_the_highest_scores_and_counts_the_wrong_among_them():
+    scores = [0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.95]
+    actable = [True] * 9 + [False]  # the highest score has no goal to act on
+    right = [True, True, False, True, True, False, True, True, True, True]
+    rows = generalize.risk_coverage(scores, actable, right, (1.0, 0.5, 0.2, 0.0))
+    assert rows[0] == {"target": 1.0, "threshold": 0.1, "coverage": 0.9, "risk": pytest.approx(2 / 9)}
+    assert rows[1] == {"target": 0.5, "threshold": 0.5, "coverage": 0.5, "risk": pytest.approx(1 / 5)}
+    assert rows[2] == {"target": 0.2, "threshold": 0.8, "coverage": 0.2, "risk": 0.0}
+    assert rows[3] == {"target": 0.0, "threshold": None, "coverage": 0.0, "risk": None}
+    tied = generalize.risk_coverage([0.5, 0.5, 0.5, 0.1], [True] * 4, [True, False, True, True], (0.25,))
+    # every sentence at the threshold is acted on
+    assert tied[0]["coverage"] == 0.75 and tied[0]["risk"] == pytest.approx(1 / 3)
 
 
 def test_calibrate_fits_a_calibration_the_agent_then_uses(run_copy, tmp_path, capsys):
