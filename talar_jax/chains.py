@@ -16,6 +16,9 @@ Whether sub-task k holds is known two ways, recorded side by side for every clau
 
 ``advance_on`` picks which of the two moves the chain on to the next clause; the other is only watched. The step
 numbers count the env steps from the start of the chain (the first step is 1); -1: not reached.
+
+``chain_episode(agent, codes, goals, key)`` runs one chain the same way and keeps its physics positions and the clause
+each step followed: what a video of the chain shows.
 """
 
 from __future__ import annotations
@@ -134,8 +137,12 @@ class ChainResult:
         }
 
 
-def _chain_fn(agent: Any, length: int, budget: int, advance_on: str, deterministic: bool, language: bool):
-    """``chain(key, codes (L, C), goals (L,)) -> (reached_step, env_step, language_step)``, each (L,) int32."""
+def _chain_fn(
+    agent: Any, length: int, budget: int, advance_on: str, deterministic: bool, language: bool, trajectory: bool = False
+):
+    """``chain(key, codes (L, C), goals (L,)) -> (reached_step, env_step, language_step)``, each (L,) int32; with
+    ``trajectory`` also ``(qpos (L * budget + 1, nq), clause (L * budget,), valid (L * budget,))``: the physics
+    positions from the reset on, the clause each step followed and whether the chain was still running."""
     env = agent.env
     obs_size = env.state_observation_size
 
@@ -181,14 +188,70 @@ def _chain_fn(agent: Any, length: int, budget: int, advance_on: str, determinist
             used = jnp.where(holds, 0, used)
             return state, start, following, used, total, failed, rng, reached, by_env, by_language
 
-        carry = jax.lax.while_loop(running, step, carry)
-        return carry[7], carry[8], carry[9]
+        if not trajectory:  # stop as soon as the chain ends (under vmap: as soon as every chain has)
+            carry = jax.lax.while_loop(running, step, carry)
+            return carry[7], carry[8], carry[9]
+
+        def guarded(carry, _):  # every one of the L x budget steps, frozen once the chain has ended
+            active, clause = running(carry), carry[2]  # the clause whose code this step follows
+            stepped = step(carry)
+            carry = jax.tree.map(lambda new, old: jnp.where(active, new, old), stepped, carry)
+            return carry, (carry[0].data.qpos, clause, active)
+
+        final, (qpos, clause, valid) = jax.lax.scan(guarded, carry, None, length * budget)
+        return (final[7], final[8], final[9]), (jnp.concatenate([state.data.qpos[None], qpos]), clause, valid)
 
     return chain
 
 
 _COMPILED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 """agent -> {(length, budget, advance_on, deterministic, language): compiled vmapped chains}, dropped with the agent."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ChainEpisode:
+    """One chain's episode, for showing it (``chain_episode``).
+
+    Attributes:
+        result: its ``ChainResult`` (one chain).
+        qpos: (T + 1, nq) physics positions from the reset on (``env.render`` draws them); T = L x budget, the steps
+            after the chain ended repeat its last state.
+        clause: (T,) the clause whose code each step followed.
+        valid: (T,) True for the steps of the chain (before and at its end).
+    """
+
+    result: ChainResult
+    qpos: np.ndarray
+    clause: np.ndarray
+    valid: np.ndarray
+
+    @property
+    def length(self) -> int:
+        """Steps the chain took."""
+        return int(self.valid.sum())
+
+
+def _checked(
+    agent: Any, codes: np.ndarray, goals: np.ndarray, advance_on: str, budget: int | None
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """(codes, goals, budget, language available) checked for ``run_chains`` (a ``ValueError`` naming the problem)."""
+    if advance_on not in ADVANCE_ON:
+        raise ValueError(f"advance_on must be one of {', '.join(ADVANCE_ON)}, got {advance_on!r}")
+    codes = np.asarray(codes, np.float32)
+    goals = np.asarray(goals, np.int32)
+    if codes.ndim != 3 or goals.ndim != 2 or codes.shape[:2] != goals.shape:
+        raise ValueError(f"codes (N, L, code_size) and goals (N, L) must agree, got {codes.shape} and {goals.shape}")
+    if codes.shape[2] != agent.code_size:
+        raise ValueError(f"codes have {codes.shape[2]} entries, the agent's have {agent.code_size}")
+    if goals.size and (goals.min() < 0 or goals.max() >= agent.env.num_goals):
+        raise ValueError(f"goals must lie in 0..{agent.env.num_goals - 1}")
+    budget = int(agent.env.episode_length if budget is None else budget)
+    if budget < 1:
+        raise ValueError(f"budget must be >= 1, got {budget}")
+    language = agent.generator_params is not None and not agent.continuous_codes
+    if advance_on == "language" and not language:
+        raise ValueError("advance_on='language' needs the agent's TL generator, and this agent has none")
+    return codes, goals, budget, language
 
 
 def run_chains(
@@ -207,22 +270,7 @@ def run_chains(
     may take ``budget`` steps (default: ``env.episode_length``, the single-task budget); a clause that runs out ends
     its chain. ``rng`` draws the resets and the sampled actions (``deterministic``: the policy's mode instead).
     """
-    if advance_on not in ADVANCE_ON:
-        raise ValueError(f"advance_on must be one of {', '.join(ADVANCE_ON)}, got {advance_on!r}")
-    codes = np.asarray(codes, np.float32)
-    goals = np.asarray(goals, np.int32)
-    if codes.ndim != 3 or goals.ndim != 2 or codes.shape[:2] != goals.shape:
-        raise ValueError(f"codes (N, L, code_size) and goals (N, L) must agree, got {codes.shape} and {goals.shape}")
-    if codes.shape[2] != agent.code_size:
-        raise ValueError(f"codes have {codes.shape[2]} entries, the agent's have {agent.code_size}")
-    if goals.size and (goals.min() < 0 or goals.max() >= agent.env.num_goals):
-        raise ValueError(f"goals must lie in 0..{agent.env.num_goals - 1}")
-    budget = int(agent.env.episode_length if budget is None else budget)
-    if budget < 1:
-        raise ValueError(f"budget must be >= 1, got {budget}")
-    language = agent.generator_params is not None and not agent.continuous_codes
-    if advance_on == "language" and not language:
-        raise ValueError("advance_on='language' needs the agent's TL generator, and this agent has none")
+    codes, goals, budget, language = _checked(agent, codes, goals, advance_on, budget)
     length = int(goals.shape[1])
     compiled = _COMPILED.setdefault(agent, {})
     key = (length, budget, advance_on, deterministic, language)
@@ -239,3 +287,31 @@ def run_chains(
         language_available=language,
         budget=budget,
     )
+
+
+def chain_episode(
+    agent: Any,
+    codes: np.ndarray,
+    goals: np.ndarray,
+    key: jax.Array,
+    advance_on: str = "env",
+    budget: int | None = None,
+    deterministic: bool = False,
+) -> ChainEpisode:
+    """One chain (``codes`` (L, code_size), ``goals`` (L,)) as ``run_chains`` runs it with this chain's ``key`` (row i
+    of ``run_chains`` uses ``jax.random.split(rng, N)[i]``), with its physics positions and the clause of each step:
+    what a video of the chain shows. It always takes L x budget steps (the ones after the chain ended are padding)."""
+    codes, goals, budget, language = _checked(
+        agent, np.asarray(codes)[None], np.asarray(goals)[None], advance_on, budget
+    )
+    length = int(goals.shape[1])
+    chain = _chain_fn(agent, length, budget, advance_on, deterministic, language, trajectory=True)
+    compiled = _COMPILED.setdefault(agent, {})
+    cache_key = ("episode", length, budget, advance_on, deterministic, language)
+    if cache_key not in compiled:
+        compiled[cache_key] = jax.jit(chain)
+    steps, (qpos, clause, valid) = jax.device_get(
+        compiled[cache_key](key, jnp.asarray(codes[0]), jnp.asarray(goals[0]))
+    )
+    result = ChainResult(goals, *(np.asarray(x)[None] for x in steps), advance_on, language, budget)
+    return ChainEpisode(result, np.asarray(qpos), np.asarray(clause), np.asarray(valid))

@@ -14,7 +14,7 @@ from envs.kitchen.scripted import scripted_action
 from envs.wrappers import EpisodeWrapper
 from experiments import chains as chains_command
 from talar_jax.agent import load
-from talar_jax.chains import ChainResult, run_chains
+from talar_jax.chains import ChainResult, chain_episode, run_chains
 from tests.helpers import one_line_error
 
 
@@ -283,6 +283,28 @@ def test_run_chains_is_the_plain_loop_of_clauses_without_reset(language, advance
     assert result.language_available == language and (result.agreement() is None) != language
     if language:
         assert (result.language_step >= 0).any()
+
+
+def test_one_chain_episode_is_its_row_of_run_chains_with_the_physics_kept():
+    agent = ScriptedClevrAgent()
+    goals = np.array([[3, 50, 21], [70, 12, 44]])
+    codes = np.eye(agent.code_size, dtype=np.float32)[goals]
+    rng = jax.random.key(2)
+    batch = run_chains(agent, codes, goals, rng, budget=12)
+    for row, key in enumerate(jax.random.split(rng, len(goals))):
+        episode = chain_episode(agent, codes[row], goals[row], key, budget=12)
+        np.testing.assert_array_equal(episode.result.reached_step[0], batch.reached_step[row])
+        assert episode.qpos.shape == (3 * 12 + 1, agent.env.mj_model.nq) and episode.clause.shape == (3 * 12,)
+        steps = episode.length
+        assert episode.valid[:steps].all() and not episode.valid[steps:].any()
+        reached = episode.result.reached_step[0]
+        assert steps == (reached.max() if (reached >= 0).all() else max(reached.max(), 0) + 12)
+        # the clause followed moves on right after each reached step
+        for clause, at in enumerate(reached[reached >= 0][:-1]):
+            assert episode.clause[at - 1] == clause and episode.clause[at] == clause + 1
+        np.testing.assert_array_equal(episode.qpos[steps + 1 :], np.repeat(episode.qpos[steps][None], 36 - steps, 0))
+        start = agent.env.reset(jax.random.split(key)[0], int(goals[row, 0]))
+        np.testing.assert_allclose(episode.qpos[0], start.data.qpos, atol=1e-6)  # jit and eager round apart
 
 
 def test_run_chains_refuses_what_it_cannot_run():
