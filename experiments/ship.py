@@ -4,7 +4,8 @@ The shipped agent is a run folder cut down to what ``talar_jax.agent.load`` read
 ``config.json`` (one seed), ``encoding.json``, ``language.json``, ``confidence.json`` (``experiments.calibrate``), the
 policy's parameters as one msgpack file (``ifp/ppo/policy.msgpack``, in place of the orbax checkpoints), the
 encoding's parameters (every seed's translator, the shipped seed's first: the confidence measure weighs their
-agreement) and ``shipped.json``: where it came from (run, seed, command, commit) and the success that run
+agreement), TALAR's TL generator of that seed (``task_language/params.msgpack``: chains tell by it that a sub-task was
+done) and ``shipped.json``: where it came from (run, seed, command, commit) and the success that run
 recorded for that seed, which ``tests/test_shipped_agents.py`` checks the shipped files still reach. ``--seed``
 defaults to the run's best seed (mean of its final success on training and test instructions).
 """
@@ -24,6 +25,7 @@ from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import (
     CONFIDENCE_FILE,
+    GENERATOR_FILE,
     POLICY_FILE,
     SHIPPED_AGENTS_DIR,
     SHIPPED_RECORD,
@@ -88,6 +90,11 @@ def ship(args: ShipArgs) -> Path:
         order = np.array([seed, *[s for s in range(seeds) if s != seed]])
         (target / encoding.params.path).parent.mkdir(parents=True, exist_ok=True)
         save_tree(target / encoding.params.path, jax.tree.map(lambda x: np.asarray(x)[order], params))
+    if (folder / GENERATOR_FILE).is_file():
+        # the shipped seed's TL generator (not its receiver): what tells, in a chain, that a sub-task was done
+        generator = load_tree(folder / GENERATOR_FILE)["generator"]
+        (method / GENERATOR_FILE).parent.mkdir(parents=True, exist_ok=True)
+        save_tree(method / GENERATOR_FILE, {"generator": _one_seed(generator, seed)})
     if (folder / CONFIDENCE_FILE).is_file():
         shutil.copy(folder / CONFIDENCE_FILE, method / CONFIDENCE_FILE)
     write_json_atomic(

@@ -399,3 +399,22 @@ def test_chain_phrasings_are_held_out_test_sentences(kitchen_agent):
 )
 def test_chains_command_bad_input_is_one_line(capsys, argv, message):
     assert message in one_line_error(capsys, chains_command.main, argv)
+
+
+def test_a_run_and_the_agent_shipped_from_it_share_the_seeds_generator(clevr_run, tmp_path):
+    from experiments import ship
+    from experiments.reports import load_agent
+
+    out, _ = clevr_run
+    run_agent = load_agent(out, seed=1)  # the run's own generator: seed-stacked in talar/task_language
+    assert run_agent.generator_params is not None
+    shipped = load(ship.ship(ship.ShipArgs(out, name="probe", seed=1, out=tmp_path)))
+    assert_trees_equal(shipped.generator_params, run_agent.generator_params)
+    other = load_agent(out, seed=0).generator_params
+    assert not all(
+        np.array_equal(a, b) for a, b in zip(jax.tree.leaves(other), jax.tree.leaves(shipped.generator_params))
+    )
+    states = np.random.default_rng(0).uniform(-0.4, 0.5, (8, 10)).astype(np.float32)
+    np.testing.assert_array_equal(
+        shipped.task_language(states, states[::-1]), run_agent.task_language(states, states[::-1])
+    )
