@@ -46,7 +46,7 @@ class PolarityConfig:
     positive_weight: float = 2.0
     """The positive label's weight in the loss relative to the balanced class weights: above 1 the classifier needs
     more evidence before it refuses, which keeps plain instructions it never read acted on."""
-    members: int = 3
+    members: int = 5
     """Ensemble members (seeds 0 .. members - 1)."""
     act_threshold: float = 0.5
     """An agent acts on a sentence only when the ensemble's probability of ``positive`` reaches this."""
