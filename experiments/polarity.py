@@ -12,15 +12,15 @@ into ``--report``. Deterministic: the same code and encoder give the same bytes.
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import flax.serialization
 import numpy as np
 
 from experiments.cli import ArgumentParser, check_outputs, command
+from experiments.reports import write_measures
 from talar_jax import runtime
-from talar_jax.agent import POLARITY_PARAMS, POLARITY_RECORD, SHIPPED_AGENTS_DIR
+from talar_jax.agent import POLARITY_STEM, SHIPPED_AGENTS_DIR
 from talar_jax.confidence.polarity import POSITIVE, PolarityConfig, fit_polarity, polarity_probabilities
 from talar_jax.language import cached_sentence_features, load_encoder, stack_features
 from talar_jax.language.polarity import LABELS, polarity_set
@@ -92,15 +92,8 @@ def run_command(argv: list[str] | None = None) -> dict:
             }
             for half, held in (("train", False), ("held_out", True))
         }
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / POLARITY_PARAMS).write_bytes(
-        flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(members))
-    )
-    (args.out / POLARITY_RECORD).write_text(json.dumps(record, indent=1) + "\n")
-    table = report_table(record)
-    if args.report is not None:
-        args.report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
-    print(table)
+    params = flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(members))
+    write_measures(args.out, POLARITY_STEM, params, record, report_table(record), args.report)
     return record
 
 

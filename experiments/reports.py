@@ -235,3 +235,14 @@ def write_deployment_strip(config: ExperimentConfig, folder: Path, cache: Embedd
         return f"deployment strip: not written ({error})"
     path = plot_deployment_strip(rows, folder / "deployment.png", title=f"{method_label(config.method)}, seed 0")
     return f"deployment strip: {path}"
+
+
+def write_measures(out: Path, stem: str, params_bytes: bytes, record: dict, table: str, report: Path | None) -> None:
+    """A fitted language model's files beside the agents (``<stem>.msgpack``, ``<stem>.json``) and its measures:
+    printed, and written as markdown to ``report`` (when given) under a line naming the command and commit."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.msgpack").write_bytes(params_bytes)
+    (out / f"{stem}.json").write_text(json.dumps(record, indent=1) + "\n")
+    if report is not None:
+        report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
+    print(table)

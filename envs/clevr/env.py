@@ -70,6 +70,18 @@ class ClevrTask:
     distance: jax.Array  # () float32 source-to-target distance after the last step (the dense reward's d_prev)
 
 
+def _goal_task(goal: jax.Array, ball_xy: jax.Array) -> ClevrTask:
+    """The task of pushing for ``goal`` from the balls at ``ball_xy`` (an episode's start, or a new goal's)."""
+    return ClevrTask(
+        goal=goal,
+        source=jnp.asarray(tasks.GOAL_SOURCE)[goal],
+        destination=jnp.asarray(tasks.GOAL_DESTINATION)[goal],
+        relation=jnp.asarray(tasks.GOAL_RELATION)[goal],
+        start_xy=ball_xy,
+        distance=tasks.goal_distance(ball_xy, goal),
+    )
+
+
 class ClevrEnv(Env):
     """Five balls on a table and a point pusher (Jiang et al. 2019 CLEVR-Robot; TALAR's goal semantics).
 
@@ -192,14 +204,7 @@ class ClevrEnv(Env):
             task = ClevrTask(none, none, none, none, ball_xy, jnp.float32(0.0))
         else:
             goal = tasks.sample_goal(rng_goal, ball_xy) if goal is None else goal
-            task = ClevrTask(
-                goal=goal,
-                source=jnp.asarray(tasks.GOAL_SOURCE)[goal],
-                destination=jnp.asarray(tasks.GOAL_DESTINATION)[goal],
-                relation=jnp.asarray(tasks.GOAL_RELATION)[goal],
-                start_xy=ball_xy,
-                distance=tasks.goal_distance(ball_xy, goal),
-            )
+            task = _goal_task(goal, ball_xy)
         zero = jnp.zeros((), jnp.float32)
         metrics = self._metrics(ball_xy, task, zero, zero)
         obs = self.observe_goal(ball_xy.reshape(-1), task)
@@ -264,14 +269,7 @@ class ClevrEnv(Env):
         out_of_range = self.goal_out_of_range(goal)
         goal = jnp.asarray(goal, jnp.int32)
         ball_xy = state.data.qpos[: self.state_observation_size].reshape(tasks.NUM_BALLS, 2)
-        task = ClevrTask(
-            goal=goal,
-            source=jnp.asarray(tasks.GOAL_SOURCE)[goal],
-            destination=jnp.asarray(tasks.GOAL_DESTINATION)[goal],
-            relation=jnp.asarray(tasks.GOAL_RELATION)[goal],
-            start_xy=ball_xy,
-            distance=tasks.goal_distance(ball_xy, goal),
-        )
+        task = _goal_task(goal, ball_xy)
         zero = jnp.zeros((), jnp.float32)
         metrics = self._metrics(ball_xy, task, zero, zero)
         obs = self.observe_goal(ball_xy.reshape(-1), task)
