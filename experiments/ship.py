@@ -51,6 +51,11 @@ class ShipArgs:
     """Folder of shipped agents (the agent goes to ``<out>/<name>``)."""
 
 
+TRAINING_ONLY_OPTIONS = ("start", "start_done_probability")
+"""Env options that shape how a policy was trained (where its episodes started), not the task: a shipped agent acts
+in the env as a user makes it, so they are left out of its config and named in its record."""
+
+
 def best_seed(summary: dict) -> int:
     """The seed with the highest mean of its final success on training and test instructions (the first of ties)."""
     final = summary["final_success"]
@@ -73,6 +78,9 @@ def ship(args: ShipArgs) -> Path:
     method = target / folder.name
     (method / "ifp" / "ppo").mkdir(parents=True)
     config = read_config(folder)
+    options = dict(config.get("env_options") or {})
+    trained_with = {key: options.pop(key) for key in TRAINING_ONLY_OPTIONS if key in options}
+    config["env_options"] = options
     config_seeds = config["seeds"]
     config["seeds"] = 1
     config["ifp"] = {**config["ifp"], "num_seeds": 1}
@@ -108,6 +116,7 @@ def ship(args: ShipArgs) -> Path:
             "commit": summary.get("commit"),
             "ifp_env_steps_per_seed": summary["ifp_env_steps_per_seed"],
             "final_success": {split: rates[seed] for split, rates in summary["final_success"].items()},
+            **({"trained_with_env_options": trained_with} if trained_with else {}),
         },
     )
     return target
