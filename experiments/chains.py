@@ -3,7 +3,10 @@
 ``python -m experiments.chains kitchen|clevr|RUN [--chains 1000] [--length 4] [--seed S ...] [--json OUT]``
 
 RUN is a shipped agent's name or a finished run folder. Each chain is L distinct goals in random order, each clause a
-held-out test phrasing of its goal (the language cache's test split); the agent runs the whole chain in one episode
+held-out test phrasing of its goal given on its own. ``--clauses sentence`` says the chain as one sentence instead:
+test phrasings (or held-out verb phrases) joined by held-out connectives (``talar_jax.language.compound``), which the
+agent splits with its clause parser and judges (``Agent.plans``); a chain it does not act on counts as nothing done.
+The agent runs the whole chain in one episode
 with no reset (``talar_jax.chains``): clause k's code until sub-task k holds, then clause k+1's, each clause with
 the single-task step budget, the chain ending at its first failed clause. Whether a sub-task holds is told by the
 env's success test (what the scores count) and, for agents that carry their task-language generator, by the task
@@ -31,7 +34,9 @@ from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import Agent, AgentError
 from talar_jax.chains import ADVANCE_ON, ChainResult, run_chains
+from talar_jax.language.compound import compound_sentences
 
+CLAUSE_MODES = ("sentence", "separate")
 TRANSITION_GOALS = 10
 """Envs with at most this many goals (the kitchen's six sub-tasks, not CLEVR's 80) get the table of clauses reached by
 the sub-task before and their own."""
@@ -47,6 +52,10 @@ class ChainsArgs:
     """Clauses per chain (distinct goals; at most the env's number of goals with test phrasings)."""
     seed: tuple[int, ...] = (0,)
     """The run's seeds to measure (one row each)."""
+    clauses: str = "separate"
+    """How a chain is said: 'separate' (each clause given on its own, translated directly: the policy alone) or
+    'sentence' (one compound sentence of held-out phrasings and connectives, split by the agent's clause parser,
+    ``Agent.plans``; a chain the agent does not act on, or parses into other goals, fails where it goes wrong)."""
     all_chains: int = 1000
     """Kitchen only: chains of all six sub-tasks, in random order, per seed (0: none)."""
     budget: int | None = None
@@ -69,6 +78,8 @@ def check_args(args: ChainsArgs) -> None:
         raise UsageError("--seed needs at least one seed")
     if args.all_chains < 0:
         raise UsageError(f"--all-chains must be >= 0, got {args.all_chains}")
+    if args.clauses not in CLAUSE_MODES:
+        raise UsageError(f"--clauses must be one of {', '.join(CLAUSE_MODES)}, got {args.clauses!r}")
     if args.budget is not None and args.budget < 1:
         raise UsageError(f"--budget must be >= 1, got {args.budget}")
     check_outputs((args.json, "--json", "file"))
@@ -95,25 +106,59 @@ def sample_chains(
 
 
 def clause_codes(agent: Agent, sentences: list[list[str]]) -> np.ndarray:
-    """(N, L, code_size) the code each clause is followed by: the one place clauses become codes.
-
-    Each clause is translated on its own (``Agent.translate``), each distinct sentence once.
-    """
+    """(N, L, code_size) the code each clause is followed by when each clause is given on its own: each translated
+    alone (``Agent.translate``), each distinct sentence once."""
     distinct = sorted({sentence for chain in sentences for sentence in chain})
     codes = dict(zip(distinct, agent.translate(distinct), strict=True))
     return np.stack([np.stack([codes[sentence] for sentence in chain]) for chain in sentences])
 
 
+def parsed_codes(agent: Agent, sentences: list[str], goals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The agent's reading of one compound sentence per chain (``Agent.plans``): (N, L, code_size) the code of each
+    clause it parsed (a chain parsed into fewer clauses follows its last one to the end), (N,) whether it acts on
+    the sentence and (N,) whether its clauses name the chain's goals in the chain's order."""
+    plans = agent.plans(sentences)
+    length = goals.shape[1]
+    texts = [[step.sentence for step in plan.steps][:length] for plan in plans]
+    texts = [row + [row[-1]] * (length - len(row)) for row in texts]
+    acted = np.array([plan.acts for plan in plans])
+    right = np.array([plan.goals == tuple(int(g) for g in row) for plan, row in zip(plans, goals, strict=True)])
+    return clause_codes(agent, texts), acted, right
+
+
+def chain_inputs(agent: Agent, goals: np.ndarray, phrasings: list[list[str]], args: ChainsArgs, seed: int):
+    """(codes (N, L, code_size), acted (N,), parsing record or None) of the chains, as ``--clauses`` says them."""
+    if args.clauses == "separate":
+        return clause_codes(agent, phrasings), np.ones(len(goals), bool), None
+    said = compound_sentences(agent.env_name, goals, held_out=True, seed=seed)
+    codes, acted, right = parsed_codes(agent, [s.text for s in said], goals)
+    parsing = {"sentences": len(said), "acted": float(acted.mean()), "right_goals_in_order": float(right.mean())}
+    parsing["examples"] = [s.text for s in said[:3]]
+    print(
+        f"parsed: {len(said)} compound sentences; acted on {100 * parsing['acted']:.1f} %, right goals in the right "
+        f'order {100 * parsing["right_goals_in_order"]:.1f} % (e.g. "{said[0].text}")'
+    )
+    return codes, acted, parsing
+
+
 def measure(
-    agent: Agent, goals: np.ndarray, codes: np.ndarray, key: jax.Array, args: ChainsArgs
+    agent: Agent, goals: np.ndarray, codes: np.ndarray, key: jax.Array, args: ChainsArgs, acted: np.ndarray
 ) -> tuple[dict[str, ChainResult], dict[str, float]]:
     """The chains moved on by the env's test and, when the agent has its TL generator, by the task language (the
-    same goals, resets and action keys), with the seconds each took (compile included)."""
+    same goals, resets and action keys), with the seconds each took (compile included). A chain the agent did not
+    act on (``acted`` False) counts as none of its clauses done."""
     results, seconds = {}, {}
     for test in ADVANCE_ON:
         start = time.perf_counter()
-        results[test] = run_chains(agent, codes, goals, key, test, args.budget, args.deterministic)
+        result = run_chains(agent, codes, goals, key, test, args.budget, args.deterministic)
         seconds[test] = time.perf_counter() - start
+        refused = ~np.asarray(acted)[:, None]
+        results[test] = dataclasses.replace(
+            result,
+            reached_step=np.where(refused, -1, result.reached_step),
+            env_step=np.where(refused, -1, result.env_step),
+            language_step=np.where(refused, -1, result.language_step),
+        )
         if not results[test].language_available:
             break
     return results, seconds
@@ -200,17 +245,16 @@ def chains(args: ChainsArgs) -> dict[str, Any]:
     per_seed, all_rows = [], []
     for agent in agents:
         key = jax.random.fold_in(jax.random.key(args.rng_seed), agent.seed)
-        numbers = record(measure(agent, goals, clause_codes(agent, sentences), key, args), agent.env.num_goals)
-        per_seed.append((agent.seed, numbers))
+        codes, acted, parsing = chain_inputs(agent, goals, sentences, args, args.rng_seed)
+        numbers = record(measure(agent, goals, codes, key, args, acted), agent.env.num_goals)
+        per_seed.append((agent.seed, {**numbers, "parsing": parsing}))
         if everything is not None:
             all_goals, all_sentences = everything
-            codes = clause_codes(agent, all_sentences)
-            all_rows.append(
-                (
-                    agent.seed,
-                    record(measure(agent, all_goals, codes, jax.random.fold_in(key, 1), args), agent.env.num_goals),
-                )
+            codes, acted, parsing = chain_inputs(agent, all_goals, all_sentences, args, args.rng_seed + 1)
+            numbers = record(
+                measure(agent, all_goals, codes, jax.random.fold_in(key, 1), args, acted), agent.env.num_goals
             )
+            all_rows.append((agent.seed, {**numbers, "parsing": parsing}))
     print(table(per_seed, args.length))
     for seed, numbers in per_seed:
         print(f"seed {seed}: {agreement_line(numbers)}")

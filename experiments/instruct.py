@@ -35,6 +35,7 @@ from experiments.recipes import get_recipe
 from experiments.reports import load_agent
 from talar_jax import runtime
 from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError
+from talar_jax.chains import chain_episode, run_chains
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,11 +165,15 @@ def write_json(path: Path | None, payload) -> None:
 
 def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], goal: int | None, load_s) -> dict:
     """Translates and judges one sentence, acts on it when the verdict (or ``--act-anyway``) says so; prints the
-    lines and returns the record ``--json`` writes."""
+    lines and returns the record ``--json`` writes. A sentence the clause parser splits into several tasks is a
+    chain (``answer_chain``)."""
     begun = time.perf_counter()
+    plan = agent.plan(sentence)
+    if len(plan.steps) > 1:
+        return answer_chain(agent, args, plan, names, goal, load_s)
     code = agent.translate(sentence)[0]
     decoded = agent.nearest_goal(code)
-    verdict = agent.understand(sentence)
+    verdict = plan.steps[0]
     translated = time.perf_counter()
     print(f'sentence: "{sentence}"')
     print(f"code: {format_code(agent, code)}")
@@ -181,7 +186,7 @@ def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], go
     judged = verdict.to_json(names)
     judged["understood_goal"], judged["understood_goal_name"] = judged.pop("goal"), judged.pop("goal_name")
     result = {**judged, "code": code.tolist(), "decoded_goal": decoded, "goal": goal if goal is not None else decoded}
-    result["acted"] = False
+    result.update(acted=False, plan=plan.to_json(names)["plan"])
     if not verdict.acts and not args.act_anyway:
         print(verdict.describe(names))
         return result
@@ -194,7 +199,9 @@ def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], go
     how = "given with --goal" if goal is not None else "decoded from the sentence"
     rng = jax.random.key(args.rng_seed)
     goals = np.full(args.episodes, scored, np.int32)
-    success = agent.success_rate(np.broadcast_to(code, (args.episodes, code.size)), goals, rng, args.deterministic)
+    _, valid, success = agent.episodes(
+        np.broadcast_to(code, (args.episodes, code.size)), goals, rng, args.deterministic
+    )
     episodes_done = time.perf_counter()
     rate = float(success.mean())
     print(
@@ -202,6 +209,7 @@ def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], go
         f"({names[scored]}, {how})"
     )
     result.update(acted=True, goal=scored, success=rate)
+    result["plan"][0]["reached_step"] = int(valid[0].sum()) if success[0] else None  # the first episode's
     if args.video is not None:
         result.update(write_episode_video(agent, args, sentence, scored, jax.random.split(rng, args.episodes)[0]))
     loading = f"load {load_s:.1f} s, " if load_s is not None else ""
@@ -210,6 +218,82 @@ def answer(agent: Agent, args: InstructArgs, sentence: str, names: list[str], go
         f"{args.episodes} episodes {episodes_done - translated:.1f} s (compile included)"
     )
     return result
+
+
+def answer_chain(agent: Agent, args: InstructArgs, plan, names: list[str], goal: int | None, load_s) -> dict:
+    """A sentence that asks for several tasks: prints the plan (each clause, its code, goal and verdict); when the
+    agent acts on every clause (or ``--act-anyway``), runs ``--episodes`` chains (``talar_jax.chains``: one episode,
+    each clause until its sub-task holds, then the next) and prints the step at which the first chain reached each
+    sub-task and how many chains did all of them."""
+    if goal is not None:
+        raise AgentError("--goal names one goal; the goals of a chain come from its clauses")
+    begun = time.perf_counter()
+    clauses = [step.sentence for step in plan.steps]
+    codes = agent.translate(clauses)
+    print(f'sentence: "{plan.sentence}"')
+    print(f"plan: {len(clauses)} tasks, in the order they are to be done")
+    for index, (step, code) in enumerate(zip(plan.steps, codes, strict=True)):
+        meant = names[step.goal] if step.goal is not None else "no goal"
+        print(f'  {index + 1}. "{step.sentence}" -> {meant} ({step.verdict}, confidence {step.confidence:.2f})')
+        print(f"     code: {format_code(agent, code)}")
+    result = {**plan.to_json(names), "codes": codes.tolist()}
+    if not plan.acts and not args.act_anyway:
+        print(plan.describe(names).splitlines()[0])
+        return result
+    if not plan.acts:
+        print("acting anyway (--act-anyway): a clause was not understood; its likeliest goal is pursued")
+    goals = np.array([step.goal if step.goal is not None else step.likeliest for step in plan.steps], np.int32)
+    rng = jax.random.key(args.rng_seed)
+    episodes = args.episodes
+    chains = run_chains(
+        agent,
+        np.broadcast_to(codes, (episodes, *codes.shape)),
+        np.broadcast_to(goals, (episodes, goals.size)),
+        rng,
+        deterministic=args.deterministic,
+    )
+    done = time.perf_counter()
+    first = chains.reached_step[0]
+    print(f"first chain ({chains.budget} steps at most per task):")
+    for index, (goal_id, step) in enumerate(zip(goals, first, strict=True)):
+        where = f"reached at step {step}" if step >= 0 else "not reached: the chain stops here"
+        print(f"  {index + 1}. {names[goal_id]}: {where}")
+    complete = int((chains.completed == len(goals)).sum())
+    print(
+        f"chains: all {len(goals)} tasks done in {complete}/{episodes} episodes ({100 * complete / episodes:.1f} %); "
+        f"average {chains.average_length:.2f} of {len(goals)} done in a row"
+    )
+    for record, step in zip(result["plan"], first, strict=True):
+        record["reached_step"] = int(step) if step >= 0 else None
+    result.update(acted=True, goals=goals.tolist(), chains=chains.summary())
+    if args.video is not None:
+        result.update(write_chain_video(agent, args, plan, codes, goals, jax.random.split(rng, episodes)[0]))
+    loading = f"load {load_s:.1f} s, " if load_s is not None else ""
+    print(f"time: {loading}{episodes} chains {done - begun:.1f} s (compile included)")
+    return result
+
+
+def write_chain_video(agent: Agent, args: InstructArgs, plan, codes, goals, key) -> dict:
+    """Writes the first chain (``key``: its key in ``run_chains``) to ``--video``, each frame captioned with the
+    clause it follows; ``{"video": path}`` when written."""
+    episode = chain_episode(agent, codes, goals, key, deterministic=args.deterministic)
+    steps = int(episode.valid.sum())
+    clauses = [step.sentence for step in plan.steps]
+    try:
+        from envs.render import RenderError, caption, write_video
+
+        frames = agent.env.render(episode.qpos[: steps + 1])
+        # frame t shows the state after step t; it is captioned with the clause step t (or, first, step 1) followed
+        shown = [int(episode.clause[max(t - 1, 0)]) for t in range(len(frames))]
+        frames = [caption([f], f"{k + 1}/{len(clauses)}: {clauses[k]}")[0] for f, k in zip(frames, shown, strict=True)]
+        frames += [frames[-1]] * 5  # linger on the last frame
+        write_video(frames, args.video, fps=5.0 if agent.env_name.startswith("clevr") else 12.5)
+    except RenderError as error:
+        print(f"video: not written ({error})")
+        return {}
+    reached = int((episode.result.reached_step[0] >= 0).sum())
+    print(f"video: {args.video} (the first chain, {steps} steps, {reached} of {len(clauses)} tasks reached)")
+    return {"video": str(args.video)}
 
 
 def write_episode_video(agent: Agent, args: InstructArgs, sentence: str, goal: int, key) -> dict:

@@ -44,7 +44,8 @@ import numpy as np
 
 import envs
 from talar_jax.checkpoint import load_tree, read_json_record
-from talar_jax.confidence import NOT_UNDERSTOOD, Calibration, ConfidenceError, Understanding, Verdict
+from talar_jax.clauses import ClauseParserConfig, join_fragments, merge_repeated_tasks, parse_clauses
+from talar_jax.confidence import NOT_UNDERSTOOD, Calibration, ConfidenceError, Plan, Understanding, Verdict
 from talar_jax.confidence.polarity import (
     NEGATED,
     OPPOSITE,
@@ -113,10 +114,17 @@ SHIPPED_RECORD = "shipped.json"
 CONFIG_FILE = "config.json"
 CONFIDENCE_FILE = "confidence.json"
 """A run's confidence calibration, in its method folder (``python -m experiments.calibrate`` writes it)."""
-POLARITY_PARAMS = "polarity.msgpack"
-POLARITY_RECORD = "polarity.json"
-"""The polarity classifier every agent reads (``talar_jax.confidence.polarity``), beside the shipped agents
-(``python -m experiments.polarity`` writes both); it reads one encoder's token states, named in the record."""
+POLARITY_STEM = "polarity"
+"""The polarity classifier every agent reads (``talar_jax.confidence.polarity``), beside the shipped agents as
+``polarity.msgpack`` and ``polarity.json`` (``python -m experiments.polarity`` writes both); it reads one encoder's
+token states, named in the record."""
+POLARITY_PARAMS, POLARITY_RECORD = f"{POLARITY_STEM}.msgpack", f"{POLARITY_STEM}.json"
+JOIN_BELOW = 0.9
+"""A clause that names nothing is joined to its neighbour when the parser's probability of the cut between them is
+under this (``talar_jax.clauses.join_fragments``)."""
+CLAUSES_STEM = "clauses"
+"""The clause parser every agent reads (``talar_jax.clauses``), beside the shipped agents as ``clauses.msgpack`` and
+``clauses.json`` (``python -m experiments.clauses`` writes both), for one encoder as the polarity classifier."""
 DEFAULT_CALIBRATION_FILE = SHIPPED_AGENTS_DIR / "default_confidence.json"
 """The calibration of runs that have none of their own: the one fit on the kitchen TALAR run at the paper's budget
 (``python -m experiments.calibrate runs/kitchen``, ``results/abstention.md``). Its familiarity is that of
@@ -397,6 +405,7 @@ class Agent:
         self._understanding: Understanding | None = None
         self._polarity: tuple | None = None  # (members, config) of the polarity classifier, or () when none fits
         self._calibration: Calibration | None = None
+        self._clause_parser: tuple | None = None  # (params, config) of the clause parser, or () when none fits
 
     # --- language --------------------------------------------------------------------------------------------
     def _check_encoder(self) -> None:
@@ -558,6 +567,70 @@ class Agent:
         reason = f'asks not to "{task}"' if label == "negated" else f'asks for the opposite of "{task}"'
         return dataclasses.replace(verdict, verdict=NOT_UNDERSTOOD, goal=None, polarity=label, reason=reason)
 
+    @property
+    def clause_parser(self) -> tuple | None:
+        """``(params, config)`` of the clause parser ``plan`` reads (the shipped one, loaded on first use), or None
+        when none reads this run's encoder; set it to try another."""
+        if self._clause_parser is None:
+            self._clause_parser = load_clause_parser(self.encoder) or ()
+        return self._clause_parser or None
+
+    @clause_parser.setter
+    def clause_parser(self, parser: tuple | None) -> None:
+        self._clause_parser = parser or ()
+
+    def plan(self, sentence: str) -> Plan:
+        """The clauses of a sentence that may ask for several tasks, in the order they are to be done, each with its
+        verdict (``Plan``). The clause parser shipped beside the agents splits it; a sentence it reads as one clause,
+        or when none reads this run's encoder, is judged as a whole, as ``understand`` judges it."""
+        if not isinstance(sentence, str):
+            raise TypeError(f"plan takes one sentence, a str; got {type(sentence).__name__}: {sentence!r}")
+        return self.plans([sentence])[0]
+
+    def plans(self, sentences: Sequence[str]) -> list[Plan]:
+        """``plan`` of each sentence, parsed and judged in batches."""
+        sentences = list(sentences)
+        if self.clause_parser is None:
+            return [Plan(s, (v,)) for s, v in zip(sentences, self.judge(sentences), strict=True)]
+        params, config = self.clause_parser
+        try:
+            parsed = parse_clauses(params, self.encoder, sentences, config)
+        except ValueError as error:  # longer than the encoder reads
+            raise AgentError(str(error)) from None
+        split = self._grounded(sentences, parsed)
+        whole = self.judge(sentences)
+        plans = []
+        for judged, verdict in zip(split, whole, strict=True):
+            # a sentence read as one clause is judged as a whole, exactly as ``understand`` judges it; so is one
+            # whose clauses are not all understood while the whole is (the parser cut one request where it should
+            # not have): a split that does not read is never preferred to a whole that does
+            one = judged is None or (verdict.acts and not all(v.acts for v in judged))
+            plans.append(Plan(verdict.sentence, (verdict,) if one else tuple(judged)))
+        return plans
+
+    def _grounded(self, sentences: list[str], parsed: list[list]) -> list[list[Verdict] | None]:
+        """Per sentence, the verdicts of its clauses after joining what the parser cut but the agent reads as one
+        request (a piece that names no task, cut where the parser was unsure; the same task named twice in a row);
+        None when one clause is left. Each round judges the clauses of every sentence still changing in one call."""
+        out: list[list[Verdict] | None] = [None] * len(sentences)
+        pending = {i: clauses for i, clauses in enumerate(parsed) if len(clauses) > 1}
+        while pending:
+            texts = [clause.text for clauses in pending.values() for clause in clauses]
+            verdicts = iter(self.judge(texts))
+            changed = {}
+            for index, clauses in pending.items():
+                judged = [next(verdicts) for _ in clauses]
+                names_nothing = [v.goal is None and v.reason is None for v in judged]  # no task, no polarity
+                joined = join_fragments(sentences[index], clauses, names_nothing, JOIN_BELOW)
+                if joined is None:
+                    joined = merge_repeated_tasks(sentences[index], clauses, [v.goal for v in judged])
+                if len(joined) == len(clauses):
+                    out[index] = judged
+                elif len(joined) > 1:
+                    changed[index] = joined
+            pending = changed
+        return out
+
     # --- acting ----------------------------------------------------------------------------------------------
     def act(self, obs: jax.Array, code: jax.Array, rng: jax.Array, deterministic: bool = False) -> jax.Array:
         """An action for one observation (obs,) and code (code_size,) (pure JAX: jit / vmap it)."""
@@ -660,15 +733,16 @@ def load(run_dir: str | Path, seed: int = 0, physics: str | None = None) -> Agen
     return Agent(run_dir, seed=seed, physics=physics)
 
 
-def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tuple[list, PolarityConfig] | None:
-    """The shipped polarity classifier's members and config, or None when there is none or it reads another
-    encoder's token states than ``encoder``'s (a damaged file is one ``AgentError`` naming it)."""
+def read_shipped_model(encoder: BertEncoder, stem: str, command: str, folder: Path = SHIPPED_AGENTS_DIR):
+    """``(parameters, record)`` of a language model shipped beside the agents as ``stem.msgpack`` and ``stem.json``,
+    or None when there is none or it reads another encoder's token states than ``encoder``'s (a damaged file is one
+    ``AgentError`` naming it and ``command``, which rebuilds it)."""
     import flax.serialization
 
-    record_path, params_path = folder / POLARITY_RECORD, folder / POLARITY_PARAMS
+    record_path, params_path = folder / f"{stem}.json", folder / f"{stem}.msgpack"
     if not record_path.is_file() or not params_path.is_file():
         return None
-    rebuild = "rebuild it with: python -m experiments.polarity"
+    rebuild = f"rebuild it with: {command}"
     try:
         record = json.loads(record_path.read_text())
     except json.JSONDecodeError:
@@ -676,8 +750,24 @@ def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tu
     if record.get("encoder_cache_key") != encoder.cache_key:
         return None
     try:
-        state = flax.serialization.msgpack_restore(params_path.read_bytes())
+        return flax.serialization.msgpack_restore(params_path.read_bytes()), record
     except ValueError:
         raise AgentError(f"{params_path} is damaged; {rebuild}") from None
-    members = [state[key] for key in sorted(state, key=int)]
-    return members, PolarityConfig(**record["config"])
+
+
+def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tuple[list, PolarityConfig] | None:
+    """The shipped polarity classifier's members and config, or None (see ``read_shipped_model``)."""
+    shipped = read_shipped_model(encoder, POLARITY_STEM, "python -m experiments.polarity", folder)
+    if shipped is None:
+        return None
+    state, record = shipped
+    return [state[key] for key in sorted(state, key=int)], PolarityConfig(**record["config"])
+
+
+def load_clause_parser(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR):
+    """The shipped clause parser's parameters and config, or None (see ``read_shipped_model``)."""
+    shipped = read_shipped_model(encoder, CLAUSES_STEM, "python -m experiments.clauses", folder)
+    if shipped is None:
+        return None
+    params, record = shipped
+    return params, ClauseParserConfig(**record["config"])

@@ -36,7 +36,7 @@ from talar_jax.confidence.scores import (
     pooled_embeddings,
     register_code_scorer,
 )
-from talar_jax.confidence.verdict import AMBIGUOUS, NOT_UNDERSTOOD, UNDERSTOOD, VERDICTS, Verdict
+from talar_jax.confidence.verdict import AMBIGUOUS, NOT_UNDERSTOOD, UNDERSTOOD, VERDICTS, Plan, Verdict
 
 __all__ = [
     "AMBIGUOUS",
@@ -48,6 +48,7 @@ __all__ = [
     "CodeScorer",
     "ConfidenceError",
     "Measures",
+    "Plan",
     "Understanding",
     "Verdict",
     "decode_goals",

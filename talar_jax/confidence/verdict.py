@@ -95,3 +95,71 @@ class Verdict:
             f'not understood: "{self.sentence}" names nothing this agent was trained on (confidence '
             f"{self.confidence:.2f}, closest: {listed[0]}); rephrase, or --act-anyway"
         )
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What an agent makes of a sentence that may ask for several tasks: its clauses in the order they are to be
+    done, each with its own verdict. The agent acts on the chain only when it acts on every clause.
+
+    Attributes:
+        sentence: the sentence.
+        steps: one ``Verdict`` per clause (its ``sentence`` is the clause's text), in the order to be done; a sentence
+            that asks for one task is one step, judged as a whole.
+    """
+
+    sentence: str
+    steps: tuple[Verdict, ...]
+
+    @property
+    def acts(self) -> bool:
+        """Whether the agent acts on the chain: every clause understood."""
+        return all(step.acts for step in self.steps)
+
+    @property
+    def goals(self) -> tuple[int | None, ...]:
+        """The goal of each clause, in the order to be done (None where a clause is not understood)."""
+        return tuple(step.goal for step in self.steps)
+
+    @property
+    def blocking(self) -> int | None:
+        """The index of the first clause the agent does not act on (None when it acts on all)."""
+        return next((index for index, step in enumerate(self.steps) if not step.acts), None)
+
+    def to_json(self, goal_names: Sequence[str], reached: Sequence[int | None] | None = None) -> dict[str, Any]:
+        """``{"sentence", "acted", "plan": [{"clause", "goal" (its name), "verdict", "reached_step", "goal_id",
+        ...}]}`` (the other keys: the clause's ``Verdict.to_json``);
+        ``reached``: the step at which each clause's task was reached when the chain was run (None: not run, or not
+        reached)."""
+        reached = list(reached) if reached is not None else [None] * len(self.steps)
+        plan = []
+        for step, at in zip(self.steps, reached, strict=True):
+            record = step.to_json(goal_names)
+            plan.append(
+                {
+                    "clause": step.sentence,
+                    "goal": record["goal_name"],
+                    "verdict": step.verdict,
+                    "reached_step": at,
+                    "goal_id": step.goal,
+                    **{k: v for k, v in record.items() if k not in ("sentence", "goal", "goal_name", "verdict")},
+                }
+            )
+        return {"sentence": self.sentence, "acted": self.acts, "plan": plan}
+
+    def describe(self, goal_names: Sequence[str]) -> str:
+        """Lines for a person: one per clause, or the single verdict of a one-task sentence; when the agent does not
+        act, the first line names the clause that stops it."""
+        if len(self.steps) == 1:
+            return self.steps[0].describe(goal_names)
+        lines = []
+        if not self.acts:
+            index = self.blocking
+            lines.append(
+                f'not acted on: clause {index + 1} of {len(self.steps)}, "{self.steps[index].sentence}", is not '
+                "understood; rephrase it, or --act-anyway"
+            )
+        else:
+            lines.append(f"a chain of {len(self.steps)} tasks, done in this order:")
+        lines += [f"  {index + 1}. {step.describe(goal_names)}" for index, step in enumerate(self.steps)]
+        return "\n".join(lines)

@@ -1,0 +1,288 @@
+"""The clause parser: a sentence that asks for several tasks becomes its clauses, in the order they are to be done.
+
+A sentence-similarity encoder gives one vector per sentence, so "open the microwave, then switch on the light"
+becomes one code and the agent does one thing. ``ClauseTagger`` reads the encoder's state of every word piece
+instead and labels each piece twice: whether it begins a new clause (a clause keeps the words that join it to the
+one before: ", then ...", "before you ...") and whether its clause is done where it is written, one place later
+("before you switch on the light, open the microwave") or one place earlier ("... once you open the microwave").
+The pieces' states are contextual, so "and" inside "fill the kettle and put it on the stove" reads differently
+from "and" between two tasks. It is fitted on the project's compound instructions (``talar_jax.language.compound``)
+and judged on their held-out half: templates, joins and phrasings it never read.
+
+Arrays in, arrays out, plus ``parse_clauses`` for sentences; the agent loader reads the shipped parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from talar_jax.language.compound import clause_begins
+
+CONTINUES, BEGINS = range(2)
+"""Whether a piece begins a new clause or continues the one before it."""
+SHIFTS = (0, 1, -1)
+"""What a clause's place in the order to be done is, against its written place: the same, one later, one earlier."""
+LENGTH_BUCKET = 32
+STRIPPED = " ,;:.!?"
+"""Punctuation and spaces around a clause's words, left out of its text."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ClauseParserConfig:
+    """How the tagger is built and fitted (chosen on the train half only: the held-out half measures it)."""
+
+    hidden: int = 128
+    """Width of the per-piece layers."""
+    heads: int = 4
+    """Self-attention heads of the attention layer over the pieces."""
+    attention: bool = True
+    """Add one trained attention layer over the pieces (False: each piece is labelled from its own encoder state,
+    which is already contextual)."""
+    dropout: float = 0.2
+    """Dropout on the piece states while fitting."""
+    steps: int = 1000
+    """Adam steps."""
+    batch_size: int = 64
+    learning_rate: float = 1e-3
+    weight_decay: float = 1e-2
+    seed: int = 0
+
+
+class ClauseTagger(nn.Module):
+    """(B, T, D) piece states, zero after a sentence's last piece -> (B, T, 2) boundary logits over (``CONTINUES``,
+    ``BEGINS``) and (B, T, 3) shift logits over ``SHIFTS``."""
+
+    config: ClauseParserConfig
+
+    @nn.compact
+    def __call__(self, pieces: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
+        mask = jnp.any(pieces != 0, axis=-1)  # (B, T)
+        x = nn.Dropout(self.config.dropout, deterministic=not train)(pieces)
+        x = nn.gelu(nn.Dense(self.config.hidden)(x))
+        # one attention layer over the pieces: a clause's shift is said by a word before it ("before you ...") or
+        # after it ("... first"), possibly a clause away
+        if self.config.attention:
+            attended = nn.MultiHeadDotProductAttention(num_heads=self.config.heads)(
+                nn.LayerNorm()(x), mask=nn.make_attention_mask(mask, mask)
+            )
+            x = x + attended
+        x = x + nn.Dense(self.config.hidden)(nn.gelu(nn.Dense(self.config.hidden)(nn.LayerNorm()(x))))
+        return nn.Dense(2)(x), nn.Dense(len(SHIFTS))(x)
+
+
+@dataclasses.dataclass(frozen=True)
+class Clause:
+    """One clause of a sentence: its text and character span, its written index, where it goes in the order to be
+    done (``rank``: its written index moved by its shift; clauses are done by increasing rank) and the tagger's
+    probability that a clause begins where it begins (1 for the first)."""
+
+    text: str
+    start: int
+    end: int
+    written: int
+    rank: float = 0.0
+    begins: float = 1.0
+
+
+def piece_offsets(encoder, sentences: Sequence[str]) -> tuple[list[list[int]], list[list[tuple[int, int]]]]:
+    """Word-piece ids (without [CLS]/[SEP]) and the character span of each piece, per sentence."""
+    encodings = encoder.tokenizer.encode_batch(list(sentences), add_special_tokens=False)
+    return [e.ids for e in encodings], [list(e.offsets) for e in encodings]
+
+
+def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.ndarray, np.ndarray]:
+    """The model inputs (ids with [CLS]/[SEP]) and per-piece targets of ``CompoundSentence`` s: (N, T) boundary and
+    (N, T) shift index, T = longest input; -1 on [CLS], [SEP] and padding.
+
+    A clause owns the words between it and the clause before it ("then", "before you", "once you"): each clause
+    begins right after the previous one ends, so every piece belongs to one clause and no word is labelled as
+    belonging to no clause (whether "Can you" of "Can you open it and then ..." belongs to the first task or to
+    neither has no answer; that it does not begin a second one has)."""
+    ids, offsets = piece_offsets(encoder, [s.text for s in sentences])
+    length = max(len(row) for row in ids) + 2
+    boundary = np.full((len(sentences), length), -1, np.int32)
+    shift = np.full((len(sentences), length), -1, np.int32)
+    for row, (sentence, spans) in enumerate(zip(sentences, offsets, strict=True)):
+        rank = {written: done for done, written in enumerate(sentence.order)}
+        begins = clause_begins(sentence.text, sentence.spans)
+        for piece, (start, _) in enumerate(spans):
+            clause = int(np.searchsorted(begins, start, side="right")) - 1
+            first = piece == 0 or spans[piece - 1][0] < begins[clause]
+            boundary[row, piece + 1] = BEGINS if first else CONTINUES
+            shift[row, piece + 1] = SHIFTS.index(int(np.clip(rank[clause] - clause, -1, 1)))
+    return [encoder.with_specials(row) for row in ids], boundary, shift
+
+
+def piece_states(encoder, sequences: Sequence[Sequence[int]], dtype=np.float32) -> np.ndarray:
+    """(N, T, D) encoder states of every piece (zero after a sequence's end), T the longest sequence rounded up to
+    ``LENGTH_BUCKET``; sequences of similar length are run together so that long ones do not pad short ones."""
+    lengths = np.array([len(s) for s in sequences])
+    width = -(-int(lengths.max()) // LENGTH_BUCKET) * LENGTH_BUCKET
+    out = np.zeros((len(sequences), width, encoder.embedding_dim), dtype)
+    buckets = -(-lengths // LENGTH_BUCKET) * LENGTH_BUCKET
+    for bucket in np.unique(buckets):
+        rows = np.flatnonzero(buckets == bucket)
+        states = encoder.token_states([sequences[i] for i in rows], int(bucket))
+        out[rows, : int(bucket)] = states.astype(dtype)
+    return out
+
+
+def fit_clause_parser(
+    states: np.ndarray, boundary: np.ndarray, shift: np.ndarray, config: ClauseParserConfig = ClauseParserConfig()
+):
+    """The tagger's parameters fitted on (N, T, D) piece states and their (N, T') boundary and shift targets (-1: no
+    target; T' <= T). Deterministic for given inputs."""
+    model = ClauseTagger(config)
+    width = states.shape[1]
+    boundary = np.pad(boundary, ((0, 0), (0, width - boundary.shape[1])), constant_values=-1)
+    shift = np.pad(shift, ((0, 0), (0, width - shift.shape[1])), constant_values=-1)
+    optimizer = optax.adamw(
+        optax.cosine_decay_schedule(config.learning_rate, config.steps), weight_decay=config.weight_decay
+    )
+
+    def masked_mean(logits, targets):
+        valid = targets >= 0
+        loss = optax.softmax_cross_entropy_with_integer_labels(logits, jnp.maximum(targets, 0))
+        return jnp.sum(loss * valid) / jnp.maximum(jnp.sum(valid), 1)
+
+    @jax.jit
+    def step(params, state, pieces, boundary_targets, shift_targets, key):
+        def loss(p):
+            boundary_logits, shift_logits = model.apply(p, pieces, train=True, rngs={"dropout": key})
+            return masked_mean(boundary_logits, boundary_targets) + masked_mean(shift_logits, shift_targets)
+
+        grads = jax.grad(loss)(params)
+        updates, state = optimizer.update(grads, state, params)
+        return optax.apply_updates(params, updates), state
+
+    key = jax.random.key(config.seed)
+    params = model.init(key, jnp.asarray(states[:2], jnp.float32))
+    opt_state = optimizer.init(params)
+    order = np.random.default_rng(config.seed)
+    for index in range(config.steps):
+        rows = np.sort(order.choice(len(states), config.batch_size, replace=False))
+        used = max(int(np.max(np.flatnonzero(np.any(boundary[rows] >= 0, axis=0)), initial=0)) + 2, 2)
+        used = min(-(-used // LENGTH_BUCKET) * LENGTH_BUCKET, width)  # few shapes: few compilations
+        params, opt_state = step(
+            params,
+            opt_state,
+            jnp.asarray(states[rows, :used], jnp.float32),
+            jnp.asarray(boundary[rows, :used]),
+            jnp.asarray(shift[rows, :used]),
+            jax.random.fold_in(key, index),
+        )
+    return params
+
+
+def tag_pieces(params, states: np.ndarray, config: ClauseParserConfig = ClauseParserConfig()):
+    """(N, T, 2) boundary and (N, T, 3) shift probabilities of (N, T, D) piece states."""
+    boundary_logits, shift_logits = ClauseTagger(config).apply(params, jnp.asarray(states, jnp.float32))
+    return np.asarray(jax.nn.softmax(boundary_logits, -1)), np.asarray(jax.nn.softmax(shift_logits, -1))
+
+
+def read_clauses(
+    sentence: str, offsets: Sequence[tuple[int, int]], boundary: np.ndarray, shift: np.ndarray
+) -> list[Clause]:
+    """The clauses of one sentence in the order they are to be done, from its pieces' character ``offsets`` and their
+    (P, 2) boundary and (P, 3) shift probabilities (pieces only: no [CLS]/[SEP]). The first piece always begins a
+    clause; a clause's text keeps its connective words and drops the punctuation around it."""
+    if not len(offsets):
+        return [Clause(sentence.strip(), 0, len(sentence), 0)]
+    starts = [0] + [p for p in range(1, len(offsets)) if np.argmax(boundary[p]) == BEGINS]
+    clauses = []
+    for written, (first, end) in enumerate(zip(starts, [*starts[1:], len(offsets)], strict=True)):
+        rank = written + SHIFTS[int(np.argmax(shift[first:end].mean(axis=0)))]
+        chance = 1.0 if first == 0 else float(boundary[first][BEGINS])
+        clauses.append(_clause(sentence, offsets[first][0], offsets[end - 1][1], written, rank, chance))
+    kept = [clause for clause in clauses if clause.text]
+    return in_order(kept) or [Clause(sentence.strip(), 0, len(sentence), 0)]
+
+
+def _clause(sentence: str, start: int, stop: int, written: int, rank: float, begins: float) -> Clause:
+    """The clause of ``sentence[start:stop]`` without the punctuation and spaces around it."""
+    text = sentence[start:stop]
+    stripped = text.strip(STRIPPED)
+    start += len(text) - len(text.lstrip(STRIPPED))
+    return Clause(stripped, start, start + len(stripped), written, rank, begins)
+
+
+def in_order(clauses: Sequence[Clause]) -> list[Clause]:
+    """``clauses`` in the order they are to be done: by rank, then as written."""
+    return sorted(clauses, key=lambda clause: (clause.rank, clause.written))
+
+
+def join_fragments(
+    sentence: str, clauses: Sequence[Clause], names_nothing: Sequence[bool], below: float
+) -> list[Clause] | None:
+    """``clauses`` (in the order to be done) with one clause that names nothing (``names_nothing``, by the agent's
+    verdict) joined to the written neighbour it is least sure to be cut from, when the tagger's probability of that
+    cut is under ``below``: "Can you" cut from "start heating the water" is a piece of one request, while "make me
+    a sandwich" after a confident cut stays a clause of its own (and the agent refuses the chain). None when there
+    is nothing to join."""
+    written = sorted(range(len(clauses)), key=lambda i: clauses[i].written)
+    ordered = [clauses[i] for i in written]
+    empty = [names_nothing[i] for i in written]
+    for index, clause in enumerate(ordered):
+        if not empty[index]:
+            continue
+        cuts = []  # (the tagger's probability of the cut, the neighbour's index) for each neighbour
+        if index > 0:
+            cuts.append((clause.begins, index - 1))
+        if index + 1 < len(ordered):
+            cuts.append((ordered[index + 1].begins, index + 1))
+        if not cuts or min(cuts)[0] >= below:
+            continue
+        chance, other = min(cuts)
+        first, last = sorted((index, other))
+        partner = ordered[other]
+        joined = _clause(
+            sentence,
+            ordered[first].start,
+            ordered[last].end,
+            ordered[first].written,
+            partner.rank,
+            ordered[first].begins,
+        )
+        merged = ordered[:first] + [joined] + ordered[last + 1 :]
+        return in_order(merged)
+    return None
+
+
+def parse_clauses(
+    params, encoder, sentences: Sequence[str], config: ClauseParserConfig = ClauseParserConfig()
+) -> list[list[Clause]]:
+    """Each sentence's clauses in the order they are to be done."""
+    ids, offsets = piece_offsets(encoder, sentences)
+    states = piece_states(encoder, [encoder.with_specials(row) for row in ids])
+    boundary, shift = tag_pieces(params, states, config)
+    return [
+        read_clauses(sentence, spans, boundary[row, 1 : len(spans) + 1], shift[row, 1 : len(spans) + 1])
+        for row, (sentence, spans) in enumerate(zip(sentences, offsets, strict=True))
+    ]
+
+
+def merge_repeated_tasks(sentence: str, clauses: Sequence[Clause], goals: Sequence[int | None]) -> list[Clause]:
+    """``clauses`` (in the order to be done) with each run of clauses that are next to each other in the sentence and
+    name the same task (``goals``, None: no task) joined into one: a chain never asks for one task twice in a row, so
+    "I need some hot water. Can you put the kettle on?" cut in two is one task said twice."""
+    out: list[Clause] = []
+    last_goal, written = None, (-2, -2)  # the goal and the written indices (first, last) of the clause before
+    for clause, goal in zip(clauses, goals, strict=True):
+        if out and goal is not None and goal == last_goal and clause.written in (written[0] - 1, written[1] + 1):
+            start, end = min(clause.start, out[-1].start), max(clause.end, out[-1].end)
+            out[-1] = dataclasses.replace(
+                out[-1], text=sentence[start:end], start=start, end=end, written=min(clause.written, written[0])
+            )
+            written = (min(clause.written, written[0]), max(clause.written, written[1]))
+        else:
+            out.append(clause)
+            written = (clause.written, clause.written)
+        last_goal = goal
+    return out

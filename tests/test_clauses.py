@@ -1,0 +1,163 @@
+"""Compound instructions and the clause parser: the data's labels, the decoding, and the shipped parser on held-out
+compound sentences and plain instructions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from talar_jax.clauses import (
+    BEGINS,
+    CONTINUES,
+    SHIFTS,
+    Clause,
+    merge_repeated_tasks,
+    piece_offsets,
+    piece_targets,
+    read_clauses,
+)
+from talar_jax.language.compound import compound_set
+from talar_jax.language.instructions import load_instructions
+
+
+@pytest.mark.parametrize("env", ["kitchen", "clevr"])
+def test_compound_sentences_know_their_clauses(env):
+    sentences = compound_set(env, held_out=False, count=60, seed=3)
+    assert sentences == compound_set(env, held_out=False, count=60, seed=3)  # deterministic
+    assert {len(s.goals) for s in sentences} >= {1, 2, 3}
+    for s in sentences:
+        assert len(set(s.goals)) == len(s.goals)
+        assert sorted(s.order) == list(range(len(s.goals)))
+        spans = sorted(s.spans)
+        assert all(end <= next_start for (_, end), (next_start, _) in zip(spans, spans[1:]))
+        assert all(s.text[start:end].strip() for start, end in s.spans)
+    reversed_order = [s for s in sentences if list(s.order) != sorted(s.order)]
+    assert reversed_order, "some templates put the task done first after the other"
+
+
+def test_held_out_half_uses_only_test_instructions():
+    test = set(load_instructions("kitchen", "test").sentences)
+    train = set(load_instructions("kitchen", "train").sentences)
+    clauses = [c for s in compound_set("kitchen", held_out=True, count=200, seed=0) for c in s.clauses()]
+    whole = [c for c in clauses if c.endswith((".", "?")) and c in test | train]
+    assert whole and all(c in test for c in whole)
+
+
+def test_piece_targets_mark_each_clause_and_its_shift():
+    from talar_jax.language import load_encoder
+
+    encoder = load_encoder(None)
+    sentences = compound_set("kitchen", held_out=False, count=40, seed=1)
+    sequences, boundary, shift = piece_targets(encoder, sentences)
+    for row, s in enumerate(sentences):
+        pieces = len(sequences[row]) - 2
+        labels = boundary[row, 1 : pieces + 1]
+        assert labels[0] == BEGINS and np.sum(labels == BEGINS) == len(s.goals)
+        assert boundary[row, 0] == -1 and np.all(boundary[row, pieces + 1 :] == -1)
+        begun = np.flatnonzero(labels == BEGINS)
+        written_shift = [SHIFTS[shift[row, 1 + p]] for p in begun]
+        # the order to be done is the written order with each clause moved by its shift
+        assert sorted(range(len(s.goals)), key=lambda i: (i + written_shift[i], i)) == list(s.order)
+        # reading the targets back gives the sentence's own segments
+        _, offsets = piece_offsets(encoder, [s.text])
+        clauses = read_clauses(s.text, offsets[0], _one_hot(labels, 2), _one_hot(shift[row, 1 : pieces + 1]))
+        assert tuple(c.text for c in clauses) == s.segments()
+
+
+def _one_hot(labels, size=3):
+    return np.eye(size)[np.maximum(labels, 0)]
+
+
+def test_read_clauses_orders_by_shift_and_keeps_spans():
+    from talar_jax.language import load_encoder
+
+    sentence = "Before you switch on the light, open the microwave."
+    _, offsets = piece_offsets(load_encoder(None), [sentence])
+    offsets = offsets[0]
+    words = [sentence[a:b] for a, b in offsets]
+    second = words.index("open")
+    boundary = [BEGINS if index in (0, second) else CONTINUES for index in range(len(words))]
+    shift = [SHIFTS.index(1) if index < second else SHIFTS.index(-1) for index in range(len(words))]
+    clauses = read_clauses(sentence, offsets, _one_hot(boundary, 2), _one_hot(shift))
+    assert [c.text for c in clauses] == ["open the microwave", "Before you switch on the light"]
+    assert [c.written for c in clauses] == [1, 0]
+    assert sentence[clauses[0].start : clauses[0].end] == "open the microwave"
+    whole = read_clauses(sentence, offsets, _one_hot([CONTINUES] * len(words), 2), _one_hot([0] * len(words)))
+    assert [c.text for c in whole] == ["Before you switch on the light, open the microwave"]
+
+
+def test_repeated_task_next_to_itself_is_one_clause():
+    sentence = "I need some hot water. Can you put the kettle on? Then switch on the light."
+    parts = ["I need some hot water", "Can you put the kettle on", "Then switch on the light"]
+    clauses = [Clause(p, sentence.index(p), sentence.index(p) + len(p), k) for k, p in enumerate(parts)]
+    merged = merge_repeated_tasks(sentence, clauses, [1, 1, 2])
+    assert [c.text for c in merged] == ["I need some hot water. Can you put the kettle on", parts[2]]
+    assert len(merge_repeated_tasks(sentence, clauses, [1, 2, 1])) == 3  # not next to each other: two asks
+    assert len(merge_repeated_tasks(sentence, clauses, [None, None, 2])) == 3  # naming nothing is not one task
+
+
+def _verdict(sentence, verdict, goal, reason=None):
+    from talar_jax.confidence import Verdict
+
+    return Verdict(sentence, verdict, goal, 0.9, ((goal if goal is not None else 0, 0.9),), 0.8, goal, reason=reason)
+
+
+def test_plan_acts_only_when_every_clause_is_understood():
+    from talar_jax.confidence import Plan
+
+    names = ("microwave", "kettle", "light switch")
+    acted = Plan("s", (_verdict("open the microwave", "understood", 0), _verdict("then the light", "understood", 2)))
+    assert acted.acts and acted.goals == (0, 2) and acted.blocking is None
+    record = acted.to_json(names, reached=[12, None])
+    assert record["acted"] is True
+    assert [(p["clause"], p["goal"], p["verdict"], p["reached_step"]) for p in record["plan"]] == [
+        ("open the microwave", "microwave", "understood", 12),
+        ("then the light", "light switch", "understood", None),
+    ]
+    refused = Plan(
+        "s",
+        (
+            _verdict("open the microwave", "understood", 0),
+            _verdict("but don't touch the kettle", "not understood", None, 'asks not to "move the kettle"'),
+        ),
+    )
+    assert not refused.acts and refused.blocking == 1
+    first_line = refused.describe(names).splitlines()[0]
+    assert "clause 2 of 2" in first_line and "but don't touch the kettle" in first_line
+    assert refused.to_json(names)["acted"] is False
+
+
+def test_an_agent_without_a_parser_plans_one_clause_as_understand_judges_it():
+    from talar_jax.agent import load
+
+    agent = load("clevr")
+    agent.clause_parser = None  # as for an encoder no shipped parser reads
+    sentence = "Push the red ball behind the blue ball, then push the green ball in front of the cyan ball."
+    assert agent.plan(sentence).steps == (agent.understand(sentence),)
+
+
+def test_instruct_runs_a_chain_and_records_its_plan(tmp_path, capsys, monkeypatch):
+    import json
+
+    from experiments import instruct
+    from talar_jax.agent import Agent
+    from talar_jax.confidence import Plan
+
+    clauses = ("Push the red ball behind the blue ball", "then push the green ball in front of the cyan ball")
+
+    def two_clauses(agent, sentences):  # the chain path, whatever the parser makes of the sentence
+        return [Plan(s, tuple(agent.judge(list(clauses)))) for s in sentences]
+
+    monkeypatch.setattr(Agent, "plans", two_clauses)
+    out = tmp_path / "chain.json"
+    instruct.run_command(["clevr", " ".join(clauses), "--episodes", "3", "--json", str(out)])
+    printed = capsys.readouterr().out
+    record = json.loads(out.read_text())
+    assert "plan: 2 tasks" in printed and record["acted"] is True
+    assert [p["goal"] for p in record["plan"]] == [
+        "red ball behind the blue ball",
+        "green ball in front of the cyan ball",
+    ]
+    assert all(p["verdict"] == "understood" for p in record["plan"])
+    assert all(p["reached_step"] is None or 0 < p["reached_step"] <= 100 for p in record["plan"])
+    assert record["chains"]["length"] == 2 and record["chains"]["chains"] == 3
