@@ -24,9 +24,9 @@ import numpy as np
 
 import envs
 from experiments.calibration_tables import report_text
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, run_with_args, write_output
+from experiments.cli import POSITIONAL, UsageError, check_outputs, write_output
 from experiments.recipes import get_recipe
-from talar_jax import runtime
+from experiments.reports import agent_command
 from talar_jax.agent import (
     CONFIDENCE_FILE,
     AgentError,
@@ -313,8 +313,7 @@ def calibrate(args: CalibrateArgs) -> dict:
     return record
 
 
-run_command = run_with_args(CalibrateArgs, calibrate, __doc__, setup=runtime.start)
-main = command(run_command, bad_input=(AgentError,))
+run_command, main = agent_command(CalibrateArgs, calibrate, __doc__)
 
 if __name__ == "__main__":
     raise SystemExit(main())

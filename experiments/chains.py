@@ -29,10 +29,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, run_with_args, write_output
-from experiments.reports import load_agent
-from talar_jax import runtime
-from talar_jax.agent import Agent, AgentError
+from experiments.cli import POSITIONAL, UsageError, check_outputs, write_output
+from experiments.reports import agent_command, load_agent
+from talar_jax.agent import Agent
 from talar_jax.chains import ADVANCE_ON, ChainResult, run_chains
 from talar_jax.language.compound import compound_sentences
 
@@ -285,8 +284,7 @@ def chains(args: ChainsArgs) -> dict[str, Any]:
     return out
 
 
-run_command = run_with_args(ChainsArgs, chains, __doc__, setup=runtime.start)
-main = command(run_command, bad_input=(AgentError,))
+run_command, main = agent_command(ChainsArgs, chains, __doc__)
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -30,10 +30,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, run_with_args, write_output
+from experiments.cli import POSITIONAL, UsageError, check_outputs, write_output
 from experiments.recipes import get_recipe
-from experiments.reports import load_agent
-from talar_jax import runtime
+from experiments.reports import agent_command, load_agent
 from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError, find_method_folder, read_config
 from talar_jax.confidence import VERDICTS
 from talar_jax.language import load_instructions, load_user_instructions
@@ -325,8 +324,7 @@ def generalize(args: GeneralizeArgs) -> dict:
     return result
 
 
-run_command = run_with_args(GeneralizeArgs, generalize, __doc__, setup=runtime.start)
-main = command(run_command, bad_input=(AgentError,))
+run_command, main = agent_command(GeneralizeArgs, generalize, __doc__)
 
 if __name__ == "__main__":
     raise SystemExit(main())

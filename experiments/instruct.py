@@ -30,10 +30,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from experiments.cli import POSITIONAL, UsageError, check_outputs, command, print_error, run_with_args
+from experiments.cli import POSITIONAL, UsageError, check_outputs, print_error
 from experiments.recipes import get_recipe
-from experiments.reports import load_agent
-from talar_jax import runtime
+from experiments.reports import agent_command, load_agent
 from talar_jax.agent import CONFIDENCE_FILE, Agent, AgentError
 from talar_jax.chains import chain_episode, run_chains
 
@@ -313,8 +312,7 @@ def write_episode_video(agent: Agent, args: InstructArgs, sentence: str, goal: i
     return {"video": str(args.video)}
 
 
-run_command = run_with_args(InstructArgs, instruct, __doc__, setup=runtime.start)
-main = command(run_command, bad_input=(AgentError,))
+run_command, main = agent_command(InstructArgs, instruct, __doc__)
 
 if __name__ == "__main__":
     raise SystemExit(main())

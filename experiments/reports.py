@@ -246,3 +246,15 @@ def write_measures(out: Path, stem: str, params_bytes: bytes, record: dict, tabl
     if report is not None:
         report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
     print(table)
+
+
+def agent_command(args_class: type, body, doc: str | None):
+    """``(run_command, main)`` of a command that loads an agent: its dataclass of options parsed by the project's
+    parser, the runtime started first, and an ``AgentError`` (a damaged or unfinished run, a sentence the encoder
+    cannot read) reported as bad input: one line, exit 2."""
+    from experiments.cli import command, run_with_args
+    from talar_jax import runtime
+    from talar_jax.agent import AgentError
+
+    run_command = run_with_args(args_class, body, doc, setup=runtime.start)
+    return run_command, command(run_command, bad_input=(AgentError,))
