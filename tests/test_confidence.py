@@ -261,13 +261,13 @@ def test_the_agent_understands_its_training_sentences_and_not_others(run_copy):
 
 def _count_episodes(monkeypatch) -> list[int]:
     calls = []
-    real = agent_module.Agent.success_rate
+    real = agent_module.Agent.episodes  # what success_rate and instruct run episodes through
 
     def counted(self, codes, goals, rng, deterministic=False):
         calls.append(len(goals))
         return real(self, codes, goals, rng, deterministic)
 
-    monkeypatch.setattr(agent_module.Agent, "success_rate", counted)
+    monkeypatch.setattr(agent_module.Agent, "episodes", counted)
     return calls
 
 
