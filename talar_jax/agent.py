@@ -598,14 +598,16 @@ class Agent:
         except ValueError as error:  # longer than the encoder reads
             raise AgentError(str(error)) from None
         split = self._grounded(sentences, parsed)
-        whole = self.judge(sentences)
+        # a sentence read as one clause is judged as a whole, exactly as ``understand`` judges it; so is one whose
+        # clauses are not all understood while the whole is (the parser cut one request where it should not have):
+        # a split that does not read is never preferred to a whole that does. Only those sentences are judged whole.
+        unread = [i for i, judged in enumerate(split) if judged is None or not all(v.acts for v in judged)]
+        whole = dict(zip(unread, self.judge([sentences[i] for i in unread]) if unread else [], strict=True))
         plans = []
-        for judged, verdict in zip(split, whole, strict=True):
-            # a sentence read as one clause is judged as a whole, exactly as ``understand`` judges it; so is one
-            # whose clauses are not all understood while the whole is (the parser cut one request where it should
-            # not have): a split that does not read is never preferred to a whole that does
-            one = judged is None or (verdict.acts and not all(v.acts for v in judged))
-            plans.append(Plan(verdict.sentence, (verdict,) if one else tuple(judged)))
+        for index, (sentence, judged) in enumerate(zip(sentences, split, strict=True)):
+            verdict = whole.get(index)
+            one = judged is None or (verdict is not None and verdict.acts)
+            plans.append(Plan(sentence, (verdict,) if one else tuple(judged)))
         return plans
 
     def _grounded(self, sentences: list[str], parsed: list[list]) -> list[list[Verdict] | None]:
