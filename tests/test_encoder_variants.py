@@ -82,3 +82,31 @@ def test_the_lead_is_talar_over_the_best_finished_baseline(tmp_path, monkeypatch
     assert waiting["lead"] is None and waiting["agreement"] == 0.5
     table = encoder_lead.lead_table([finished, waiting])
     assert "| minilm-cls | 50.0 | 95.0 | 80.0 | 65.0 | 50.0 | +15.0 |" in table and "not finished" in table
+
+
+def test_a_pretrained_encoder_top_over_the_states_below_it_is_the_whole_network():
+    import flax.linen as nn
+    import jax
+
+    from talar_jax.language.bert import EncoderTop, with_pretrained_top
+
+    model = encoder()
+    sequences = [model.with_specials(t) for t in model.tokenize(SENTENCES)]
+    last = model.token_states(sequences, 16)
+    first = model.config.num_hidden_layers - 1
+    below = model.token_states(sequences, 16, below_layer=first)
+    mask = np.any(last != 0, axis=-1).astype(np.int32)
+
+    class Head(nn.Module):
+        @nn.compact
+        def __call__(self, states, mask):
+            return EncoderTop(model.config, first, name="top")(states, mask)
+
+    head = Head()
+    params = head.init(jax.random.key(0), below, mask)
+    fresh = np.asarray(head.apply(params, below, mask)) * mask[..., None]
+    assert np.abs(fresh - last).max() > 1e-3  # a fresh top is not the encoder's
+    params = with_pretrained_top(params, model.params, first, ("top",))
+    np.testing.assert_allclose(np.asarray(head.apply(params, below, mask)) * mask[..., None], last, atol=1e-5)
+    with pytest.raises(ValueError, match="below_layer"):
+        model.token_states(sequences, 16, below_layer=model.config.num_hidden_layers)

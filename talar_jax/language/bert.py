@@ -162,6 +162,37 @@ class BertModel(nn.Module):
         return hidden
 
 
+class EncoderTop(nn.Module):
+    """An encoder's layers ``first`` and above as a block a small model trains: (B, T, H) states entering layer
+    ``first`` (``BertEncoder.token_states(..., below_layer=first)``) and a (B, T) mask -> (B, T, H) last hidden state.
+
+    Frozen sentence-similarity states carry what a sentence is about, not always how it is built (a negation, where a
+    clause begins); letting the top layers move while a head is fitted lets them re-read the sentence for that head.
+    Start from the encoder's own weights (``with_pretrained_top``), so that the head begins from what it knows."""
+
+    config: BertConfig
+    first: int
+
+    @nn.compact
+    def __call__(self, states: jax.Array, mask: jax.Array) -> jax.Array:
+        return BertModel(self.config, layers=(self.first, self.config.num_hidden_layers), name="bert")(states, mask)
+
+
+def with_pretrained_top(params: dict, encoder_params: dict, first: int, path: tuple[str, ...]) -> dict:
+    """``params`` (a model's, as ``init`` gives them) with the ``EncoderTop`` at ``path`` under "params" set to the
+    encoder's own weights of layers ``first`` and above. The other leaves are left as they are."""
+    params = jax.tree_util.tree_map(lambda x: x, params)  # a copy whose dicts may be edited
+    top = params["params"]
+    for name in path:
+        top = top[name]
+    for name in list(top["bert"]):
+        index = int(name.removeprefix("layer_"))
+        if index < first:
+            raise ValueError(f"{path} holds {name}, below layer {first}")
+        top["bert"][name] = jax.tree_util.tree_map(jnp.asarray, encoder_params["params"][name])
+    return params
+
+
 def mean_pool(hidden: jax.Array, attention_mask: jax.Array, normalize: bool = True) -> jax.Array:
     """Sentence-transformers pooling: mean over non-pad tokens ([CLS]/[SEP] included), then L2-normalise.
 

