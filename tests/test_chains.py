@@ -10,6 +10,7 @@ import pytest
 
 import envs
 from envs.clevr import tasks as clevr_tasks
+from envs.kitchen import tasks
 from envs.kitchen.scripted import scripted_action
 from envs.wrappers import EpisodeWrapper
 from experiments import chains as chains_command
@@ -141,6 +142,28 @@ def test_kitchen_others_done_start_sets_other_sub_tasks_done_and_keeps_the_goal_
     np.testing.assert_array_equal(everything.obs[:, :9], today.obs[:, :9])  # the arm starts where it always does
 
 
+def test_kitchen_after_subtask_start_puts_the_arm_where_a_done_sub_task_ends():
+    keys = jax.random.split(jax.random.key(1), 16)
+    options = {"physics": "c", "start_done_probability": 1.0, "noise_ratio": 0.0}
+    others = jax.jit(jax.vmap(envs.make("kitchen", start="others_done", **options).reset))(keys)
+    after = jax.jit(jax.vmap(envs.make("kitchen", start="after_subtask", **options).reset))(keys)
+    np.testing.assert_array_equal(after.task.goal, others.task.goal)
+    np.testing.assert_array_equal(after.obs[:, 9:], others.obs[:, 9:])  # the same objects done
+    postures = tasks.posture_targets("scripted")
+    gap = np.abs(np.asarray(after.obs[:, None, :7]) - postures[None, :, :7]).max(-1)  # (16, 6)
+    nearest = gap.argmin(1)
+    assert (gap.min(1) <= 0.1 + 1e-4).all()  # within start_arm_noise of a scripted posture at success
+    assert (nearest != np.asarray(after.task.goal)).all()  # never the goal's own: it is not done
+    assert len(set(nearest.tolist())) > 2
+    still = envs.make("kitchen", start="after_subtask", start_arm_noise=0.0, **options)
+    exact = np.abs(np.asarray(jax.jit(jax.vmap(still.reset))(keys).obs[:, None, :9]) - postures[None]).max(-1)
+    assert (exact.min(1) < 5e-3).all()  # exact but for finger openings a hair outside their range, clipped
+    none_done = envs.make("kitchen", start="after_subtask", **{**options, "start_done_probability": 0.0})
+    np.testing.assert_allclose(
+        np.asarray(jax.jit(jax.vmap(none_done.reset))(keys).obs[:, :9]), others.obs[:, :9], atol=0.1 + 1e-4
+    )
+
+
 def test_every_kitchen_sub_task_can_be_done_with_all_the_others_done():
     """The 'others_done' start is a kitchen a task can still be done in: the scripted controller does each sub-task
     with the five others already done (nothing in the way, no object knocked out of place)."""
@@ -178,6 +201,7 @@ def test_clevr_after_goal_start_moves_one_ball_beside_another():
     [
         ("kitchen", {"start": "anywhere"}, "start"),
         ("kitchen", {"start_done_probability": 1.5}, "start_done_probability"),
+        ("kitchen", {"start_arm_noise": -0.1}, "start_arm_noise"),
         ("clevr", {"start": "others_done"}, "start"),
     ],
 )

@@ -16,7 +16,7 @@ from envs.kitchen import tasks
 
 INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
 ALL_TASKS_REWARDS: tuple[str, ...] = ("new", "count")
-START_STATES: tuple[str, ...] = ("reset", "others_done")
+START_STATES: tuple[str, ...] = ("reset", "others_done", "after_subtask")
 STILLNESS_TESTS: tuple[str, ...] = ("observed", "true")
 
 # Clip bounds of the servo targets (the original robot config's ``pos_bound``; note joint 6's [0, 3.8]).
@@ -104,7 +104,12 @@ class KitchenConfig(EnvConfig):
     each sub-task other than the episode's goal already done with probability ``start_done_probability``: its object
     at its goal values, as earlier sub-tasks of a chain leave the kitchen). The goal is drawn as under 'reset'."""
     start_done_probability: float = 0.5
-    """With ``start='others_done'``: the probability that each other sub-task starts done."""
+    """With ``start='others_done'`` or ``'after_subtask'``: the probability that each other sub-task starts done."""
+    start_arm_noise: float = 0.1
+    """With ``start='after_subtask'``: each arm joint's uniform offset (rad) around the posture it starts in.
+    'after_subtask' is 'others_done' with the arm where a chain leaves it: at the scripted controller's posture at
+    success of one of the done sub-tasks (drawn uniformly; the reset posture when none is done), offset by this.
+    Under 'others_done' the arm always starts at the reset posture, which a chain's second clause never sees."""
 
 
 @struct.dataclass
@@ -163,6 +168,8 @@ class KitchenEnv(Env):
         check_choice("start", config.start, START_STATES)
         if not 0.0 <= config.start_done_probability <= 1.0:
             raise ValueError(f"start_done_probability must lie in [0, 1], got {config.start_done_probability}")
+        if config.start_arm_noise < 0:
+            raise ValueError(f"start_arm_noise must be >= 0, got {config.start_arm_noise}")
         if config.timestep <= 0 or config.substeps < 1 or config.noise_ratio < 0:
             raise ValueError("timestep must be > 0, substeps >= 1 and noise_ratio >= 0")
 
@@ -278,10 +285,13 @@ class KitchenEnv(Env):
             goal = tasks.sample_goal(rng_goal, distance)
         else:
             goal = jnp.asarray(goal, jnp.int32)
-        if self.config.start == "others_done":
-            # a key of its own, derived, so that the 'reset' start draws exactly what it always drew
+        if self.config.start != "reset":
+            # keys of their own, derived, so that the 'reset' start draws exactly what it always drew
             done = self.others_done(jax.random.fold_in(rng_goal, 1), goal)
-            data = self.physics.init(self.qpos_with_done(done))
+            qpos = self.qpos_with_done(done)
+            if self.config.start == "after_subtask":
+                qpos = self.arm_after(jax.random.fold_in(rng_goal, 2), done, qpos)
+            data = self.physics.init(qpos)
             obs = self._observe(data.qpos, rng_obs)
             distance = tasks.task_distances(obs, self._num_tasks)
         task = KitchenTask(
@@ -356,6 +366,18 @@ class KitchenEnv(Env):
         goal_obs = jnp.asarray(tasks.TASK_GOAL[: self._num_tasks]).sum(0)  # the sub-tasks' entries do not overlap
         obs = jnp.where(at_goal, goal_obs, jnp.asarray(tasks.INIT_OBS))
         return jnp.asarray(self._init_qpos).at[self._qpos_index].set(obs[self._obs_index])
+
+    def arm_after(self, rng: jax.Array, done: jax.Array, qpos: jax.Array) -> jax.Array:
+        """``qpos`` with the arm at the scripted posture at success of one of the ``done`` sub-tasks (uniformly; kept
+        when none is done), each arm joint offset uniformly by up to ``start_arm_noise`` (``start='after_subtask'``).
+        The fingers keep the posture's opening: an offset there would open or shut the hand for no reason."""
+        rng_task, rng_noise = jax.random.split(rng)
+        postures = jnp.asarray(tasks.posture_targets("scripted", self._num_tasks))
+        last = jax.random.categorical(rng_task, jnp.where(done, 0.0, -jnp.inf))
+        arm = jnp.where(jnp.any(done), postures[last], qpos[: tasks.NUM_ROBOT_JOINTS])
+        noise = self.config.start_arm_noise * jax.random.uniform(rng_noise, (7,), minval=-1.0, maxval=1.0)
+        arm = jnp.clip(arm.at[:7].add(noise), POS_LOW, POS_HIGH)
+        return qpos.at[: tasks.NUM_ROBOT_JOINTS].set(arm)
 
     def retarget(self, state: State, goal: jax.Array | int | str) -> State:
         """``state`` pursuing sub-task ``goal`` from now on (see ``Env.retarget``): the goal id and the goal part of
