@@ -417,3 +417,24 @@ def test_the_halves_alternate_within_each_goal_and_pattern():
     assert calibrate.meant_goals("kitchen", ["Kettle", "microwave"], NAMES) == (1, 0)
     with pytest.raises(ValueError, match="unknown goals"):
         calibrate.meant_goals("kitchen", ["fridge"], NAMES)
+
+
+def test_the_act_threshold_keeps_the_coverage_target_before_asking_back_ambiguous_sentences():
+    from talar_jax.confidence.fit import choose_act_threshold
+
+    # one seed; four development sentences (confidence 0.9, 0.8, 0.35, 0.3), two ambiguous ones (0.4, 0.32) and two
+    # no-goal ones (0.1, 0.05); every code decodes to its meant goal
+    confidence = np.array([[0.9, 0.8, 0.35, 0.3, 0.4, 0.32, 0.1, 0.05]])
+    sets = np.array(["dev"] * 4 + ["ambiguous"] * 2 + ["no_goal"] * 2)
+    goals = np.array([0, 1, 2, 3, -1, -1, -1, -1])
+    decoded = np.array([[0, 1, 2, 3, 0, 1, 2, 3]])
+    rows = np.ones(8, bool)
+    args = (confidence, decoded, sets, goals, rows, 0.95, 0.98)
+    asked_back = choose_act_threshold(*args, ambiguous_weight=1.0)  # asking both back outweighs two dev sentences
+    assert asked_back > 0.4
+    covered = choose_act_threshold(*args, ambiguous_weight=1.0, coverage_target=1.0)
+    assert covered == pytest.approx(0.3)  # every development sentence acted on, no-goal ones still not
+    # a code that decodes to no goal is not the threshold's to mend: the target counts the sentences it decides
+    missed = decoded.copy()
+    missed[0, 3] = -1
+    assert choose_act_threshold(confidence, missed, sets, goals, rows, 0.95, 0.98, 1.0, 1.0) == pytest.approx(0.35)

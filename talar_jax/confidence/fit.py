@@ -10,10 +10,13 @@ acts in turn; figures are means over acting seeds.
 
 ``fit_calibration`` fits on the calibration half: the goal posterior's temperature (the likelihood of the meant goal
 of development and test sentences), the confidence (a logistic regression on the chosen features: acting right
-against any other outcome, classes balanced) and two thresholds. The confidence from which to act: among the
-thresholds that keep ``reject_target`` of the no-goal sentences not acted on and ``accuracy_target`` of the
-development and test sentences acted on right, the one that maximises the share of development and test sentences
-acted on plus ``ambiguous_weight`` (a third by default) times the share of ambiguous sentences not acted on. The
+against any other outcome, classes balanced, ambiguous sentences left out) and two thresholds. The confidence from
+which to act: among the
+thresholds that keep ``reject_target`` of the no-goal sentences not acted on, ``accuracy_target`` of the
+development and test sentences acted on right and ``coverage_target`` of them acted on, the one that maximises the
+share of development and test sentences acted on plus ``ambiguous_weight`` (a third by default) times the share of
+ambiguous sentences not acted on. Coverage is a target, not only a gain: asking back an ambiguous sentence must not
+be bought by asking back sentences that name their goal outright. The
 familiarity from which a sentence not acted on is "ambiguous" rather than "not understood": the one that best
 separates (balanced accuracy) the ambiguous, development and test sentences not acted on from the no-goal ones.
 ``evaluate`` measures a calibration on both halves. Fitting needs scikit-learn; using a calibration does not.
@@ -101,6 +104,7 @@ def fit_calibration(
     reject_target: float,
     accuracy_target: float,
     ambiguous_weight: float = 1 / 3,
+    coverage_target: float = 0.0,
 ) -> Calibration:
     """The calibration of the module docstring, fit on the calibration half."""
     from sklearn.linear_model import LogisticRegression
@@ -112,9 +116,14 @@ def fit_calibration(
     provisional = Calibration(temperature, ensemble, features, [0.0] * len(features), [1.0] * len(features),
                               [0.0] * len(features), 0.0, 0.5, 0.0)  # fmt: skip
     seeds = range(measures.num_seeds)
-    x = np.concatenate([provisional.feature_matrix(measures, k)[calibrating] for k in seeds])
+    # Ambiguous sentences stay out of the regression: they are not wrong about a goal, they name none in particular,
+    # and as negatives they taught it to distrust every clear phrasing whose posterior is short of certain (kitchen
+    # development phrasings acted on 94.3 -> 98.6 % held-out, ambiguous ones asked back 76.0 -> 74.7 %). Asking
+    # them back is the thresholds' job, which still weighs them.
+    fitting = calibrating & (sets != "ambiguous")
+    x = np.concatenate([provisional.feature_matrix(measures, k)[fitting] for k in seeds])
     right = np.concatenate(
-        [(in_scope & (measures.decoded[k] == goals) & (measures.decoded[k] >= 0))[calibrating] for k in seeds]
+        [(in_scope & (measures.decoded[k] == goals) & (measures.decoded[k] >= 0))[fitting] for k in seeds]
     )
     if right.all() or not right.any():
         raise ValueError("the calibration half has only one outcome (all right or all wrong); nothing to fit")
@@ -130,14 +139,15 @@ def fit_calibration(
     confidence = np.stack([fitted.confidence(measures, k) for k in seeds])  # (K, S)
     decoded = np.stack([measures.decoded[k] for k in seeds])
     act_threshold = choose_act_threshold(
-        confidence, decoded, sets, goals, calibrating, reject_target, accuracy_target, ambiguous_weight
+        confidence, decoded, sets, goals, calibrating, reject_target, accuracy_target, ambiguous_weight, coverage_target
     )
     acted = (confidence >= act_threshold) & (decoded >= 0)
     familiar_threshold = choose_familiar_threshold(measures.familiarity, acted, sets, calibrating)
     unseen = calibrating & in_scope
     rejected = 1.0 - acted[:, calibrating & (sets == "no_goal")].mean()
     accuracy = (acted & (decoded == goals))[:, unseen].sum() / max(acted[:, unseen].sum(), 1)
-    met = bool(rejected >= reject_target and accuracy >= accuracy_target)
+    coverage = acted[:, unseen].mean()
+    met = bool(rejected >= reject_target and accuracy >= accuracy_target and coverage >= coverage_target)
     return dataclasses.replace(
         fitted,
         act_threshold=act_threshold,
@@ -147,11 +157,11 @@ def fit_calibration(
 
 
 def choose_act_threshold(
-    confidence, decoded, sets, goals, rows, reject_target, accuracy_target, ambiguous_weight=1 / 3
+    confidence, decoded, sets, goals, rows, reject_target, accuracy_target, ambiguous_weight=1 / 3, coverage_target=0.0
 ) -> float:
     """The threshold on the confidence from which the agent acts, from the calibration half (``rows``): among those
-    that keep its no-goal sentences not acted on and its development and test sentences acted on right (phrasings
-    the run never trained on) at their targets, the one with the most of those phrasings acted on plus
+    that keep its no-goal sentences not acted on, and its development and test sentences (phrasings the run never
+    trained on) acted on right and acted on, at their targets, the one with the most of those phrasings acted on plus
     ``ambiguous_weight`` times the share of its ambiguous sentences not acted on; if none keeps the targets, the one
     closest to them."""
     candidates = np.unique(np.concatenate([np.round(confidence[:, rows].ravel(), 6), [1.0]]))
@@ -163,9 +173,17 @@ def choose_act_threshold(
         rejected = 1.0 - acted[:, rows & (sets == "no_goal")].mean()
         count = acted[:, unseen].sum()
         accuracy = (acted & (decoded == goals))[:, unseen].sum() / count if count else 1.0
-        shortfall = max(reject_target - rejected, 0.0) + max(accuracy_target - accuracy, 0.0)
+        coverage = acted[:, unseen].mean()
+        # a code that decodes to no goal is the translator's miss, which no threshold mends: the coverage target
+        # counts the sentences the threshold decides
+        decided = acted[:, unseen].sum() / max((decoded >= 0)[:, unseen].sum(), 1)
+        shortfall = (
+            max(reject_target - rejected, 0.0)
+            + max(accuracy_target - accuracy, 0.0)
+            + max(coverage_target - decided, 0.0)
+        )
         asked = 1.0 - acted[:, ambiguous].mean() if ambiguous.any() else 0.0
-        gain = acted[:, unseen].mean() + ambiguous_weight * asked
+        gain = coverage + ambiguous_weight * asked
         key = (-round(shortfall, 9), round(gain, 9), -threshold)  # the targets first, then the gain, then lower
         if best_key is None or key > best_key:
             best, best_key = float(threshold), key
@@ -234,13 +252,15 @@ def evaluate(measures: Measures, sentences: SentenceSet, calibration: Calibratio
     return out
 
 
-def meets_targets(result: dict, reject_target: float, accuracy_target: float) -> dict[str, bool]:
+def meets_targets(
+    result: dict, reject_target: float, accuracy_target: float, coverage_target: float = 0.90
+) -> dict[str, bool]:
     held = result[HELD_OUT]
     train = result[CALIBRATION]["train"]  # train sentences belong to no half; both report them
     dev = held["dev"]
     return {
         "no_goal_not_acted": 1.0 - held["no_goal"]["acted"] >= reject_target,
-        "dev_acted": dev["acted"] >= 0.90,
+        "dev_acted": dev["acted"] >= coverage_target,
         "dev_accuracy_acted": (dev["accuracy_acted"] or 0.0) >= accuracy_target,
         "train_acted": train["acted"] >= 0.99,
         "test_acted": held["test"]["acted"] >= 0.99,
@@ -296,7 +316,8 @@ def held_out_figures(result: dict) -> dict:
 
 def fit_study(measures: Measures, sentences: SentenceSet, studied: dict, targets: tuple, ensemble_allowed: bool):
     """``(calibrations, results)`` of each measure of ``studied`` (label -> (features, ensemble)), fit with
-    ``targets`` = (reject target, accuracy target, ambiguous weight); ensembles only when ``ensemble_allowed``."""
+    ``targets`` = (reject target, accuracy target, ambiguous weight, coverage target); ensembles only when
+    ``ensemble_allowed``."""
     calibrations, results = {}, {}
     for label, (features, ensemble) in studied.items():
         calibrations[label] = fit_calibration(measures, sentences, features, ensemble and ensemble_allowed, *targets)
@@ -314,6 +335,6 @@ def with_single_seed(chosen: Calibration, measures: Measures, sentences: Sentenc
     source = {
         **single.source,
         "held_out": held_out_figures(result),
-        "meets_targets": meets_targets(result, *targets[:2]),
+        "meets_targets": meets_targets(result, *targets[:2], *targets[3:]),
     }
     return dataclasses.replace(chosen, single_seed=dataclasses.replace(single, source=source))
