@@ -6,6 +6,9 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
+
+from experiments.generalize import COVERAGES, risk_coverage
 from talar_jax.confidence import Calibration, Measures
 from talar_jax.confidence.fit import (
     CALIBRATION,
@@ -95,6 +98,37 @@ def trade_off_table(measures: Measures, sentences: SentenceSet, calibration: Cal
     return "\n".join(lines) + "\n"
 
 
+RISK_SETS = ("test", "dev", "no_goal", "ambiguous")
+"""The held-out sentences of the risk-coverage table: phrasings of a goal, and sentences an agent should not act on."""
+
+
+def risk_coverage_table(measures: Measures, sentences: SentenceSet, calibrations: dict[str, Calibration]) -> str:
+    """Markdown: for each measure compared, acting on the held-out sentences (test, development, no goal, ambiguous)
+    it scores highest, per target share of them, the threshold, the share acted on and the risk (acted on wrongly: a
+    wrong goal, or any goal for a sentence that names none), means over acting seeds."""
+    sets, parts, goals = sentences.arrays()
+    rows = (parts == HELD_OUT) & np.isin(sets, RISK_SETS)
+    lines = [
+        "| measure | target share | threshold (mean over seeds) | acted on | risk: wrong among acted |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for label, calibration in calibrations.items():
+        per_seed = []
+        for seed in range(measures.num_seeds):
+            decoded = np.asarray(measures.decoded[seed])[rows]
+            scores = calibration.confidence(measures, seed)[rows]
+            per_seed.append(risk_coverage(scores, decoded >= 0, decoded == goals[rows]))
+        for index, target in enumerate(COVERAGES):
+            at = [seed_rows[index] for seed_rows in per_seed]
+            thresholds = [r["threshold"] for r in at if r["threshold"] is not None]
+            risks = [r["risk"] for r in at if r["risk"] is not None]
+            threshold = f"{np.mean(thresholds):.3f}" if thresholds else "-"
+            risk = f"{pct(np.mean(risks))}" if risks else "-"
+            coverage = pct(np.mean([r["coverage"] for r in at]))
+            lines.append(f"| {label} | {pct(target)} | {threshold} | {coverage} | {risk} |")
+    return "\n".join(lines) + "\n"
+
+
 def seeds_table(result: dict, distinct: list[float]) -> str:
     """Markdown: per acting seed, the held-out shares acted on (train: all of it) and its goals with a code of their
     own (goals sharing a code cannot be told apart by its policy, so the agent does not act on them)."""
@@ -135,6 +169,9 @@ def report_text(measures, sentences, calibrations, results, chosen_label, chosen
         f"{sets_table(result)}\n"
         f"per acting seed (held-out):\n\n{seeds_table(result, description['distinct_goal_codes'])}\n"
         f"other thresholds on the same confidence (held-out):\n\n{trade_off_table(measures, sentences, chosen)}\n"
+        "risk against coverage of each measure (held-out test, development, no-goal and ambiguous sentences; acting "
+        "on those it scores highest):\n\n"
+        f"{risk_coverage_table(measures, sentences, calibrations)}\n"
         f"no-goal sentences per category (both halves):\n{acting}\n\n"
         f"familiarity quantiles (0, 5, 50, 95, 100 %): {json.dumps(quantiles)}\n"
     )
