@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from experiments.generalize import COVERAGES, risk_coverage
+from experiments.generalize import risk_coverage
 from talar_jax.confidence import Calibration, Measures
 from talar_jax.confidence.fit import (
     CALIBRATION,
@@ -100,6 +100,9 @@ def trade_off_table(measures: Measures, sentences: SentenceSet, calibration: Cal
 
 RISK_SETS = ("test", "dev", "no_goal", "ambiguous")
 """The held-out sentences of the risk-coverage table: phrasings of a goal, and sentences an agent should not act on."""
+RISK_SHARES = (1.0, 0.7, 0.6, 0.5, 0.4)
+"""Target shares of those acted on: a third or more of them name no goal or no goal in particular, so the curve's
+interesting part lies below 0.7."""
 
 
 def risk_coverage_table(measures: Measures, sentences: SentenceSet, calibrations: dict[str, Calibration]) -> str:
@@ -109,7 +112,7 @@ def risk_coverage_table(measures: Measures, sentences: SentenceSet, calibrations
     sets, parts, goals = sentences.arrays()
     rows = (parts == HELD_OUT) & np.isin(sets, RISK_SETS)
     lines = [
-        "| measure | target share | threshold (mean over seeds) | acted on | risk: wrong among acted |",
+        "| measure | target share | threshold on its confidence (mean over seeds) | acted on | risk: wrong among acted |",
         "|---|---:|---:|---:|---:|",
     ]
     for label, calibration in calibrations.items():
@@ -117,8 +120,8 @@ def risk_coverage_table(measures: Measures, sentences: SentenceSet, calibrations
         for seed in range(measures.num_seeds):
             decoded = np.asarray(measures.decoded[seed])[rows]
             scores = calibration.confidence(measures, seed)[rows]
-            per_seed.append(risk_coverage(scores, decoded >= 0, decoded == goals[rows]))
-        for index, target in enumerate(COVERAGES):
+            per_seed.append(risk_coverage(scores, decoded >= 0, decoded == goals[rows], RISK_SHARES))
+        for index, target in enumerate(RISK_SHARES):
             at = [seed_rows[index] for seed_rows in per_seed]
             thresholds = [r["threshold"] for r in at if r["threshold"] is not None]
             risks = [r["risk"] for r in at if r["risk"] is not None]
