@@ -23,7 +23,14 @@ from experiments.cli import READERS, ArgumentParser, check_outputs, command
 from experiments.reports import write_measures
 from talar_jax import runtime
 from talar_jax.agent import CLAUSES_STEM, SHIPPED_AGENTS_DIR, load
-from talar_jax.clauses import ClauseParserConfig, fit_clause_parser, parse_clauses, piece_states, piece_targets
+from talar_jax.clauses import (
+    ClauseParserConfig,
+    fit_clause_parser,
+    parse_clauses,
+    piece_states,
+    piece_targets,
+    stored,
+)
 from talar_jax.language import load_encoder
 from talar_jax.language.compound import compound_set
 from talar_jax.language.instructions import load_instructions
@@ -102,9 +109,12 @@ def run_command(argv: list[str] | None = None) -> dict:
     train = [s for seed, env in enumerate(ENVS) for s in compound_set(env, False, args.sentences, seed=seed)]
     print(f"reading the word-piece states of {len(train)} compound sentences", flush=True)
     sequences, place, shift = piece_targets(encoder, train)
-    states = piece_states(encoder, sequences, np.float16)
+    states = piece_states(encoder, sequences, np.float16, config)
     print(f"fitting the clause tagger ({config.steps} steps)", flush=True)
-    params = fit_clause_parser(states, place, shift, config)
+    params = fit_clause_parser(
+        states, place, shift, config, encoder, lambda step, loss: print(f"  step {step}: loss {loss:.4f}", flush=True)
+    )
+    params = stored(params)  # measured as shipped
     del states
     record = {**provenance(), "config": dataclasses.asdict(config), "train_sentences_per_env": args.sentences}
     record.update(encoder=encoder.name, encoder_cache_key=encoder.cache_key, measures={})

@@ -15,6 +15,7 @@ Arrays in, arrays out, plus ``parse_clauses`` for sentences; the agent loader re
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import flax.linen as nn
@@ -23,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from talar_jax.language.bert import BertConfig, EncoderTop, with_pretrained_top
 from talar_jax.language.compound import clause_begins
 
 CONTINUES, BEGINS = range(2)
@@ -30,6 +32,8 @@ CONTINUES, BEGINS = range(2)
 SHIFTS = (0, 1, -1)
 """What a clause's place in the order to be done is, against its written place: the same, one later, one earlier."""
 LENGTH_BUCKET = 32
+MIN_CLAUSE_PIECES = 3
+"""The fewest word pieces a clause has (a task needs at least a verb and what it acts on)."""
 STRIPPED = " ,;:.!?"
 """Punctuation and spaces around a clause's words, left out of its text."""
 
@@ -38,33 +42,47 @@ STRIPPED = " ,;:.!?"
 class ClauseParserConfig:
     """How the tagger is built and fitted (chosen on the train half only: the held-out half measures it)."""
 
+    tuned_layers: int = 1
+    """The encoder's top layers fitted with the tagger, starting from the encoder's weights (0: the tagger reads the
+    frozen last-layer states). The states were trained for sentence similarity, which says what a sentence is about
+    rather than where one request ends: frozen, a tagger over them does not even fit its own train half."""
     hidden: int = 128
     """Width of the per-piece layers."""
     heads: int = 4
     """Self-attention heads of the attention layer over the pieces."""
-    attention: bool = True
-    """Add one trained attention layer over the pieces (False: each piece is labelled from its own encoder state,
-    which is already contextual)."""
-    dropout: float = 0.2
+    attention: bool = False
+    """Add one trained attention layer over the pieces (False: each piece is labelled from its own state, which is
+    already contextual; with tuned encoder layers the attention is theirs)."""
+    dropout: float = 0.1
     """Dropout on the piece states while fitting."""
-    steps: int = 1000
+    steps: int = 1600
     """Adam steps."""
-    batch_size: int = 64
+    batch_size: int = 32
     learning_rate: float = 1e-3
+    """Of the tagger's own layers."""
+    tuned_learning_rate: float = 2e-4
+    """Of the tuned encoder layers: small, so that they move from what the encoder knows rather than forget it."""
     weight_decay: float = 1e-2
     seed: int = 0
 
 
 class ClauseTagger(nn.Module):
     """(B, T, D) piece states, zero after a sentence's last piece -> (B, T, 2) boundary logits over (``CONTINUES``,
-    ``BEGINS``) and (B, T, 3) shift logits over ``SHIFTS``."""
+    ``BEGINS``) and (B, T, 3) shift logits over ``SHIFTS``. With ``config.tuned_layers`` = k the states are those
+    entering the encoder's last k layers, which run here as an ``EncoderTop`` (``encoder``: the encoder's config)
+    fitted with the rest."""
 
     config: ClauseParserConfig
+    encoder: BertConfig | None = None
 
     @nn.compact
     def __call__(self, pieces: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
         mask = jnp.any(pieces != 0, axis=-1)  # (B, T)
-        x = nn.Dropout(self.config.dropout, deterministic=not train)(pieces)
+        x = pieces
+        if self.config.tuned_layers:
+            first = self.encoder.num_hidden_layers - self.config.tuned_layers
+            x = EncoderTop(self.encoder, first, name="top")(x, mask.astype(jnp.int32))
+        x = nn.Dropout(self.config.dropout, deterministic=not train)(x)
         x = nn.gelu(nn.Dense(self.config.hidden)(x))
         # one attention layer over the pieces: a clause's shift is said by a word before it ("before you ...") or
         # after it ("... first"), possibly a clause away
@@ -120,31 +138,56 @@ def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.nda
     return [encoder.with_specials(row) for row in ids], boundary, shift
 
 
-def piece_states(encoder, sequences: Sequence[Sequence[int]], dtype=np.float32) -> np.ndarray:
+def piece_states(
+    encoder, sequences: Sequence[Sequence[int]], dtype=np.float32, config: ClauseParserConfig | None = None
+) -> np.ndarray:
     """(N, T, D) encoder states of every piece (zero after a sequence's end), T the longest sequence rounded up to
-    ``LENGTH_BUCKET``; sequences of similar length are run together so that long ones do not pad short ones."""
+    ``LENGTH_BUCKET``; sequences of similar length are run together so that long ones do not pad short ones. With a
+    ``config`` that tunes the encoder's top layers, the states entering them (what its tagger reads); else the last
+    layer's."""
+    below = None
+    if config is not None and config.tuned_layers:
+        below = encoder.config.num_hidden_layers - config.tuned_layers
     lengths = np.array([len(s) for s in sequences])
     width = -(-int(lengths.max()) // LENGTH_BUCKET) * LENGTH_BUCKET
     out = np.zeros((len(sequences), width, encoder.embedding_dim), dtype)
     buckets = -(-lengths // LENGTH_BUCKET) * LENGTH_BUCKET
     for bucket in np.unique(buckets):
         rows = np.flatnonzero(buckets == bucket)
-        states = encoder.token_states([sequences[i] for i in rows], int(bucket))
+        states = encoder.token_states([sequences[i] for i in rows], int(bucket), below_layer=below)
         out[rows, : int(bucket)] = states.astype(dtype)
     return out
 
 
 def fit_clause_parser(
-    states: np.ndarray, boundary: np.ndarray, shift: np.ndarray, config: ClauseParserConfig = ClauseParserConfig()
+    states: np.ndarray,
+    boundary: np.ndarray,
+    shift: np.ndarray,
+    config: ClauseParserConfig = ClauseParserConfig(),
+    encoder=None,
+    progress=None,
 ):
-    """The tagger's parameters fitted on (N, T, D) piece states and their (N, T') boundary and shift targets (-1: no
-    target; T' <= T). Deterministic for given inputs."""
-    model = ClauseTagger(config)
+    """The tagger's parameters fitted on (N, T, D) piece states (``piece_states`` with this ``config``) and their
+    (N, T') boundary and shift targets (-1: no target; T' <= T); ``encoder`` gives the tuned layers' config and
+    starting weights. ``progress(step, loss)`` is called every 100 steps when given. Deterministic for given
+    inputs."""
+    model = ClauseTagger(config, encoder.config if config.tuned_layers else None)
     width = states.shape[1]
     boundary = np.pad(boundary, ((0, 0), (0, width - boundary.shape[1])), constant_values=-1)
     shift = np.pad(shift, ((0, 0), (0, width - shift.shape[1])), constant_values=-1)
-    optimizer = optax.adamw(
-        optax.cosine_decay_schedule(config.learning_rate, config.steps), weight_decay=config.weight_decay
+
+    def schedule(rate):
+        return optax.warmup_cosine_decay_schedule(0.0, rate, max(config.steps // 20, 1), config.steps)
+
+    # the tuned encoder layers learn slowly, the tagger's own layers (fresh) fast
+    optimizer = optax.multi_transform(
+        {
+            "tuned": optax.adamw(schedule(config.tuned_learning_rate), weight_decay=config.weight_decay),
+            "head": optax.adamw(schedule(config.learning_rate), weight_decay=config.weight_decay),
+        },
+        lambda params: jax.tree_util.tree_map_with_path(
+            lambda path, _: "tuned" if path[1].key == "top" else "head", params
+        ),
     )
 
     def masked_mean(logits, targets):
@@ -158,19 +201,32 @@ def fit_clause_parser(
             boundary_logits, shift_logits = model.apply(p, pieces, train=True, rngs={"dropout": key})
             return masked_mean(boundary_logits, boundary_targets) + masked_mean(shift_logits, shift_targets)
 
-        grads = jax.grad(loss)(params)
+        value, grads = jax.value_and_grad(loss)(params)
         updates, state = optimizer.update(grads, state, params)
-        return optax.apply_updates(params, updates), state
+        return optax.apply_updates(params, updates), state, value
 
     key = jax.random.key(config.seed)
     params = model.init(key, jnp.asarray(states[:2], jnp.float32))
+    if config.tuned_layers:
+        first = encoder.config.num_hidden_layers - config.tuned_layers
+        params = with_pretrained_top(params, encoder.params, first, ("top",))
     opt_state = optimizer.init(params)
     order = np.random.default_rng(config.seed)
+    # each batch is drawn from sentences of one length bucket (the bucket drawn in proportion to its size, so every
+    # sentence is as likely as before): a batch is then as long as its sentences, not as the longest one in it,
+    # which matters when an encoder layer is fitted
+    lengths = np.array([np.max(np.flatnonzero(row >= 0), initial=0) + 2 for row in boundary])
+    buckets = np.minimum(-(-lengths // LENGTH_BUCKET) * LENGTH_BUCKET, width)
+    sizes = np.unique(buckets)
+    members = [np.flatnonzero(buckets == size) for size in sizes]
+    weights = np.array([len(rows) for rows in members]) / len(buckets)
     for index in range(config.steps):
-        rows = np.sort(order.choice(len(states), config.batch_size, replace=False))
-        used = max(int(np.max(np.flatnonzero(np.any(boundary[rows] >= 0, axis=0)), initial=0)) + 2, 2)
-        used = min(-(-used // LENGTH_BUCKET) * LENGTH_BUCKET, width)  # few shapes: few compilations
-        params, opt_state = step(
+        bucket = int(order.choice(len(sizes), p=weights))
+        rows = np.sort(
+            order.choice(members[bucket], config.batch_size, replace=len(members[bucket]) < config.batch_size)
+        )
+        used = int(sizes[bucket])  # few shapes: few compilations
+        params, opt_state, value = step(
             params,
             opt_state,
             jnp.asarray(states[rows, :used], jnp.float32),
@@ -178,13 +234,36 @@ def fit_clause_parser(
             jnp.asarray(shift[rows, :used]),
             jax.random.fold_in(key, index),
         )
+        if progress is not None and (index + 1) % 100 == 0:
+            progress(index + 1, float(value))
     return params
 
 
-def tag_pieces(params, states: np.ndarray, config: ClauseParserConfig = ClauseParserConfig()):
-    """(N, T, 2) boundary and (N, T, 3) shift probabilities of (N, T, D) piece states."""
-    boundary_logits, shift_logits = ClauseTagger(config).apply(params, jnp.asarray(states, jnp.float32))
-    return np.asarray(jax.nn.softmax(boundary_logits, -1)), np.asarray(jax.nn.softmax(shift_logits, -1))
+def stored(params):
+    """The parameters as shipped: float16 (a tuned encoder layer is 7 MB in float32, half that in float16; the tagger
+    is measured with the stored values, so what is shipped is what was measured)."""
+    return jax.tree.map(lambda x: np.asarray(x, np.float16), params)
+
+
+@functools.cache
+def _tagger(config: ClauseParserConfig, encoder: BertConfig | None):
+    model = ClauseTagger(config, encoder if config.tuned_layers else None)
+
+    @jax.jit
+    def probabilities(params, states):
+        params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), params)
+        boundary_logits, shift_logits = model.apply(params, states)
+        return jax.nn.softmax(boundary_logits, -1), jax.nn.softmax(shift_logits, -1)
+
+    return probabilities
+
+
+def tag_pieces(params, states: np.ndarray, config: ClauseParserConfig = ClauseParserConfig(), encoder=None):
+    """(N, T, 2) boundary and (N, T, 3) shift probabilities of (N, T, D) piece states (``encoder``: its config when
+    ``config`` tunes its top layers)."""
+    probabilities = _tagger(config, encoder.config if encoder is not None and config.tuned_layers else None)
+    boundary, shift = probabilities(params, jnp.asarray(states, jnp.float32))
+    return np.asarray(boundary), np.asarray(shift)
 
 
 def read_clauses(
@@ -195,7 +274,7 @@ def read_clauses(
     clause; a clause's text keeps its connective words and drops the punctuation around it."""
     if not len(offsets):
         return [Clause(sentence.strip(), 0, len(sentence), 0)]
-    starts = [0] + [p for p in range(1, len(offsets)) if np.argmax(boundary[p]) == BEGINS]
+    starts = _cuts(boundary)
     clauses = []
     for written, (first, end) in enumerate(zip(starts, [*starts[1:], len(offsets)], strict=True)):
         rank = written + SHIFTS[int(np.argmax(shift[first:end].mean(axis=0)))]
@@ -203,6 +282,21 @@ def read_clauses(
         clauses.append(_clause(sentence, offsets[first][0], offsets[end - 1][1], written, rank, chance))
     kept = [clause for clause in clauses if clause.text]
     return in_order(kept) or [Clause(sentence.strip(), 0, len(sentence), 0)]
+
+
+def _cuts(boundary: np.ndarray) -> list[int]:
+    """The pieces at which the clauses begin: the first piece, and each piece the tagger thinks more likely to begin
+    a clause than not, taken from the surest down, unless a cut already taken lies fewer than
+    ``MIN_CLAUSE_PIECES`` pieces away. Where the tagger is unsure which of two neighbouring words a clause begins
+    at ("but | before that ...", "and | next ..."), it then cuts once, at the likelier one, instead of leaving a
+    clause of one connective word."""
+    pieces = len(boundary)
+    likely = [p for p in range(1, pieces) if boundary[p][BEGINS] > boundary[p][CONTINUES]]
+    starts = [0]
+    for piece in sorted(likely, key=lambda p: -boundary[p][BEGINS]):
+        if pieces - piece >= MIN_CLAUSE_PIECES and all(abs(piece - s) >= MIN_CLAUSE_PIECES for s in starts):
+            starts.append(piece)
+    return sorted(starts)
 
 
 def _clause(sentence: str, start: int, stop: int, written: int, rank: float, begins: float) -> Clause:
@@ -260,8 +354,8 @@ def parse_clauses(
 ) -> list[list[Clause]]:
     """Each sentence's clauses in the order they are to be done."""
     ids, offsets = piece_offsets(encoder, sentences)
-    states = piece_states(encoder, [encoder.with_specials(row) for row in ids])
-    boundary, shift = tag_pieces(params, states, config)
+    states = piece_states(encoder, [encoder.with_specials(row) for row in ids], config=config)
+    boundary, shift = tag_pieces(params, states, config, encoder)
     return [
         read_clauses(sentence, spans, boundary[row, 1 : len(spans) + 1], shift[row, 1 : len(spans) + 1])
         for row, (sentence, spans) in enumerate(zip(sentences, offsets, strict=True))

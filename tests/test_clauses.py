@@ -161,3 +161,30 @@ def test_instruct_runs_a_chain_and_records_its_plan(tmp_path, capsys, monkeypatc
     assert all(p["verdict"] == "understood" for p in record["plan"])
     assert all(p["reached_step"] is None or 0 < p["reached_step"] <= 100 for p in record["plan"])
     assert record["chains"]["length"] == 2 and record["chains"]["chains"] == 3
+
+
+def test_a_clause_is_cut_once_where_the_tagger_hesitates_between_neighbouring_words():
+    from talar_jax.clauses import MIN_CLAUSE_PIECES
+
+    sentence = "open the microwave but before that switch on the light"
+    words = sentence.split()
+    offsets, position = [], 0
+    for word in words:
+        offsets.append((position, position + len(word)))
+        position += len(word) + 1
+    begins = np.full(len(words), 0.05)
+    begins[0] = 1.0
+    begins[words.index("but")] = 0.7  # both "but" and "before" look like the start of the second clause
+    begins[words.index("before")] = 0.8
+    boundary = np.stack([1 - begins, begins], axis=-1)
+    clauses = read_clauses(sentence, offsets, boundary, _one_hot([0] * len(words)))
+    assert [c.text for c in clauses] == ["open the microwave but", "before that switch on the light"]
+    # a surer cut MIN_CLAUSE_PIECES words after "but" takes the place of "before", and "but" is far enough from both
+    begins[words.index("but") + MIN_CLAUSE_PIECES] = 0.9
+    clauses = read_clauses(sentence, offsets, np.stack([1 - begins, begins], axis=-1), _one_hot([0] * len(words)))
+    cut = words.index("but") + MIN_CLAUSE_PIECES
+    assert [c.text for c in clauses] == [
+        "open the microwave",
+        " ".join(words[words.index("but") : cut]),
+        " ".join(words[cut:]),
+    ]
