@@ -402,6 +402,10 @@ def test_calibrate_fits_a_calibration_the_agent_then_uses(run_copy, tmp_path, ca
     assert held["ambiguous"]["sentences"] == 1 and "candidates_hold_a_meant_goal" in held["ambiguous"]
     printed = capsys.readouterr().out
     assert "measures compared" in printed and f"calibration: {out}" in printed
+    curve = [
+        line for line in printed.splitlines() if line.startswith(f"| {calibrate.CHOSEN} | ") and line.count("|") == 6
+    ]
+    assert len(curve) == 5 and curve[0].split("|")[2].strip() == "100.0"  # one row per target share, all first
     shutil.copy(out, run_copy / "talar" / CONFIDENCE_FILE)
     assert agent_module.load(run_copy).calibration == fitted
 
