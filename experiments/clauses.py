@@ -108,11 +108,17 @@ def run_command(argv: list[str] | None = None) -> dict:
     encoder = load_encoder(None)
     train = [s for seed, env in enumerate(ENVS) for s in compound_set(env, False, args.sentences, seed=seed)]
     print(f"reading the word-piece states of {len(train)} compound sentences", flush=True)
-    sequences, place, shift = piece_targets(encoder, train)
+    sequences, place, shift, joins = piece_targets(encoder, train)
     states = piece_states(encoder, sequences, np.float16, config)
     print(f"fitting the clause tagger ({config.steps} steps)", flush=True)
     params = fit_clause_parser(
-        states, place, shift, config, encoder, lambda step, loss: print(f"  step {step}: loss {loss:.4f}", flush=True)
+        states,
+        place,
+        shift,
+        joins,
+        config,
+        encoder,
+        lambda step, loss: print(f"  step {step}: loss {loss:.4f}", flush=True),
     )
     params = stored(params)  # measured as shipped
     del states

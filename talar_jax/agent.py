@@ -617,8 +617,7 @@ class Agent:
         out: list[list[Verdict] | None] = [None] * len(sentences)
         pending = {i: clauses for i, clauses in enumerate(parsed) if len(clauses) > 1}
         while pending:
-            texts = [clause.text for clauses in pending.values() for clause in clauses]
-            verdicts = iter(self.judge(texts))
+            verdicts = iter(self._clause_verdicts([clause for clauses in pending.values() for clause in clauses]))
             changed = {}
             for index, clauses in pending.items():
                 judged = [next(verdicts) for _ in clauses]
@@ -632,6 +631,18 @@ class Agent:
                     changed[index] = joined
             pending = changed
         return out
+
+    def _clause_verdicts(self, clauses: list) -> list[Verdict]:
+        """The verdict of each clause: of its words that ask for its task (``Clause.asks``: the translator learned
+        from single instructions, not from "and then ..."), unless the whole clause is refused for its polarity, so
+        that a "don't" the parser took for a joining word still refuses the chain."""
+        stripped = [index for index, clause in enumerate(clauses) if clause.task is not None]
+        judged = self.judge([clause.text for clause in clauses] + [clauses[index].task for index in stripped])
+        verdicts = judged[: len(clauses)]
+        for index, verdict in zip(stripped, judged[len(clauses) :], strict=True):
+            if verdicts[index].reason is None:
+                verdicts[index] = verdict
+        return verdicts
 
     # --- acting ----------------------------------------------------------------------------------------------
     def act(self, obs: jax.Array, code: jax.Array, rng: jax.Array, deterministic: bool = False) -> jax.Array:

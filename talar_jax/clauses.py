@@ -29,6 +29,9 @@ from talar_jax.language.compound import clause_begins
 
 CONTINUES, BEGINS = range(2)
 """Whether a piece begins a new clause or continues the one before it."""
+ASKS, JOINS = range(2)
+"""Whether a piece is one of the words that ask for the clause's task or one that joins the clause to the others
+("and then", "before you", "but ... first")."""
 SHIFTS = (0, 1, -1)
 """What a clause's place in the order to be done is, against its written place: the same, one later, one earlier."""
 LENGTH_BUCKET = 32
@@ -68,9 +71,9 @@ class ClauseParserConfig:
 
 class ClauseTagger(nn.Module):
     """(B, T, D) piece states, zero after a sentence's last piece -> (B, T, 2) boundary logits over (``CONTINUES``,
-    ``BEGINS``) and (B, T, 3) shift logits over ``SHIFTS``. With ``config.tuned_layers`` = k the states are those
-    entering the encoder's last k layers, which run here as an ``EncoderTop`` (``encoder``: the encoder's config)
-    fitted with the rest."""
+    ``BEGINS``), (B, T, 3) shift logits over ``SHIFTS`` and (B, T, 2) logits over (``ASKS``, ``JOINS``). With
+    ``config.tuned_layers`` = k the states are those entering the encoder's last k layers, which run here as an
+    ``EncoderTop`` (``encoder``: the encoder's config) fitted with the rest."""
 
     config: ClauseParserConfig
     encoder: BertConfig | None = None
@@ -92,14 +95,15 @@ class ClauseTagger(nn.Module):
             )
             x = x + attended
         x = x + nn.Dense(self.config.hidden)(nn.gelu(nn.Dense(self.config.hidden)(nn.LayerNorm()(x))))
-        return nn.Dense(2)(x), nn.Dense(len(SHIFTS))(x)
+        return nn.Dense(2)(x), nn.Dense(len(SHIFTS))(x), nn.Dense(2)(x)
 
 
 @dataclasses.dataclass(frozen=True)
 class Clause:
     """One clause of a sentence: its text and character span, its written index, where it goes in the order to be
     done (``rank``: its written index moved by its shift; clauses are done by increasing rank) and the tagger's
-    probability that a clause begins where it begins (1 for the first)."""
+    probability that a clause begins where it begins (1 for the first); ``task``: its words that ask for its task,
+    without those that join it to the others (None: all of them)."""
 
     text: str
     start: int
@@ -107,6 +111,13 @@ class Clause:
     written: int
     rank: float = 0.0
     begins: float = 1.0
+    task: str | None = None
+
+    @property
+    def asks(self) -> str:
+        """What the agent translates: the clause without its joining words ("open the microwave" of "and then open
+        the microwave"), which read as the single instructions the translator learned from."""
+        return self.task or self.text
 
 
 def piece_offsets(encoder, sentences: Sequence[str]) -> tuple[list[list[int]], list[list[tuple[int, int]]]]:
@@ -115,9 +126,10 @@ def piece_offsets(encoder, sentences: Sequence[str]) -> tuple[list[list[int]], l
     return [e.ids for e in encodings], [list(e.offsets) for e in encodings]
 
 
-def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.ndarray, np.ndarray]:
-    """The model inputs (ids with [CLS]/[SEP]) and per-piece targets of ``CompoundSentence`` s: (N, T) boundary and
-    (N, T) shift index, T = longest input; -1 on [CLS], [SEP] and padding.
+def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.ndarray, np.ndarray, np.ndarray]:
+    """The model inputs (ids with [CLS]/[SEP]) and per-piece targets of ``CompoundSentence`` s: (N, T) boundary,
+    (N, T) shift index and (N, T) ``ASKS`` / ``JOINS``, T = longest input; -1 on [CLS], [SEP] and padding. A piece
+    joins when it lies outside its clause's own words (the instruction or phrase a template was filled with).
 
     A clause owns the words between it and the clause before it ("then", "before you", "once you"): each clause
     begins right after the previous one ends, so every piece belongs to one clause and no word is labelled as
@@ -127,6 +139,7 @@ def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.nda
     length = max(len(row) for row in ids) + 2
     boundary = np.full((len(sentences), length), -1, np.int32)
     shift = np.full((len(sentences), length), -1, np.int32)
+    joins = np.full((len(sentences), length), -1, np.int32)
     for row, (sentence, spans) in enumerate(zip(sentences, offsets, strict=True)):
         rank = {written: done for done, written in enumerate(sentence.order)}
         begins = clause_begins(sentence.text, sentence.spans)
@@ -135,7 +148,9 @@ def piece_targets(encoder, sentences: Sequence) -> tuple[list[list[int]], np.nda
             first = piece == 0 or spans[piece - 1][0] < begins[clause]
             boundary[row, piece + 1] = BEGINS if first else CONTINUES
             shift[row, piece + 1] = SHIFTS.index(int(np.clip(rank[clause] - clause, -1, 1)))
-    return [encoder.with_specials(row) for row in ids], boundary, shift
+            own_start, own_end = sentence.spans[clause]
+            joins[row, piece + 1] = ASKS if own_start <= start < own_end else JOINS
+    return [encoder.with_specials(row) for row in ids], boundary, shift, joins
 
 
 def piece_states(
@@ -163,18 +178,20 @@ def fit_clause_parser(
     states: np.ndarray,
     boundary: np.ndarray,
     shift: np.ndarray,
+    joins: np.ndarray,
     config: ClauseParserConfig = ClauseParserConfig(),
     encoder=None,
     progress=None,
 ):
     """The tagger's parameters fitted on (N, T, D) piece states (``piece_states`` with this ``config``) and their
-    (N, T') boundary and shift targets (-1: no target; T' <= T); ``encoder`` gives the tuned layers' config and
+    (N, T') boundary, shift and joins targets (-1: no target; T' <= T); ``encoder`` gives the tuned layers' config and
     starting weights. ``progress(step, loss)`` is called every 100 steps when given. Deterministic for given
     inputs."""
     model = ClauseTagger(config, encoder.config if config.tuned_layers else None)
     width = states.shape[1]
     boundary = np.pad(boundary, ((0, 0), (0, width - boundary.shape[1])), constant_values=-1)
     shift = np.pad(shift, ((0, 0), (0, width - shift.shape[1])), constant_values=-1)
+    joins = np.pad(joins, ((0, 0), (0, width - joins.shape[1])), constant_values=-1)
 
     def schedule(rate):
         return optax.warmup_cosine_decay_schedule(0.0, rate, max(config.steps // 20, 1), config.steps)
@@ -196,10 +213,14 @@ def fit_clause_parser(
         return jnp.sum(loss * valid) / jnp.maximum(jnp.sum(valid), 1)
 
     @jax.jit
-    def step(params, state, pieces, boundary_targets, shift_targets, key):
+    def step(params, state, pieces, boundary_targets, shift_targets, joins_targets, key):
         def loss(p):
-            boundary_logits, shift_logits = model.apply(p, pieces, train=True, rngs={"dropout": key})
-            return masked_mean(boundary_logits, boundary_targets) + masked_mean(shift_logits, shift_targets)
+            boundary_logits, shift_logits, joins_logits = model.apply(p, pieces, train=True, rngs={"dropout": key})
+            return (
+                masked_mean(boundary_logits, boundary_targets)
+                + masked_mean(shift_logits, shift_targets)
+                + masked_mean(joins_logits, joins_targets)
+            )
 
         value, grads = jax.value_and_grad(loss)(params)
         updates, state = optimizer.update(grads, state, params)
@@ -232,6 +253,7 @@ def fit_clause_parser(
             jnp.asarray(states[rows, :used], jnp.float32),
             jnp.asarray(boundary[rows, :used]),
             jnp.asarray(shift[rows, :used]),
+            jnp.asarray(joins[rows, :used]),
             jax.random.fold_in(key, index),
         )
         if progress is not None and (index + 1) % 100 == 0:
@@ -252,26 +274,30 @@ def _tagger(config: ClauseParserConfig, encoder: BertConfig | None):
     @jax.jit
     def probabilities(params, states):
         params = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), params)
-        boundary_logits, shift_logits = model.apply(params, states)
-        return jax.nn.softmax(boundary_logits, -1), jax.nn.softmax(shift_logits, -1)
+        return tuple(jax.nn.softmax(logits, -1) for logits in model.apply(params, states))
 
     return probabilities
 
 
 def tag_pieces(params, states: np.ndarray, config: ClauseParserConfig = ClauseParserConfig(), encoder=None):
-    """(N, T, 2) boundary and (N, T, 3) shift probabilities of (N, T, D) piece states (``encoder``: its config when
-    ``config`` tunes its top layers)."""
+    """(N, T, 2) boundary, (N, T, 3) shift and (N, T, 2) joins probabilities of (N, T, D) piece states
+    (``encoder``: its config when ``config`` tunes its top layers)."""
     probabilities = _tagger(config, encoder.config if encoder is not None and config.tuned_layers else None)
-    boundary, shift = probabilities(params, jnp.asarray(states, jnp.float32))
-    return np.asarray(boundary), np.asarray(shift)
+    return tuple(np.asarray(p) for p in probabilities(params, jnp.asarray(states, jnp.float32)))
 
 
 def read_clauses(
-    sentence: str, offsets: Sequence[tuple[int, int]], boundary: np.ndarray, shift: np.ndarray
+    sentence: str,
+    offsets: Sequence[tuple[int, int]],
+    boundary: np.ndarray,
+    shift: np.ndarray,
+    joins: np.ndarray | None = None,
 ) -> list[Clause]:
     """The clauses of one sentence in the order they are to be done, from its pieces' character ``offsets`` and their
     (P, 2) boundary and (P, 3) shift probabilities (pieces only: no [CLS]/[SEP]). The first piece always begins a
-    clause; a clause's text keeps its connective words and drops the punctuation around it."""
+    clause; a clause's text keeps its connective words and drops the punctuation around it. With (P, 2) ``joins``
+    probabilities, each clause's ``task`` is its text from its first to its last piece more likely to ask than to
+    join."""
     if not len(offsets):
         return [Clause(sentence.strip(), 0, len(sentence), 0)]
     starts = _cuts(boundary)
@@ -279,7 +305,12 @@ def read_clauses(
     for written, (first, end) in enumerate(zip(starts, [*starts[1:], len(offsets)], strict=True)):
         rank = written + SHIFTS[int(np.argmax(shift[first:end].mean(axis=0)))]
         chance = 1.0 if first == 0 else float(boundary[first][BEGINS])
-        clauses.append(_clause(sentence, offsets[first][0], offsets[end - 1][1], written, rank, chance))
+        clause = _clause(sentence, offsets[first][0], offsets[end - 1][1], written, rank, chance)
+        asking = [] if joins is None else [p for p in range(first, end) if joins[p][ASKS] >= joins[p][JOINS]]
+        if asking:
+            task = _clause(sentence, offsets[asking[0]][0], offsets[asking[-1]][1], written, rank, chance).text
+            clause = dataclasses.replace(clause, task=task if task and task != clause.text else None)
+        clauses.append(clause)
     kept = [clause for clause in clauses if clause.text]
     return in_order(kept) or [Clause(sentence.strip(), 0, len(sentence), 0)]
 
@@ -355,9 +386,10 @@ def parse_clauses(
     """Each sentence's clauses in the order they are to be done."""
     ids, offsets = piece_offsets(encoder, sentences)
     states = piece_states(encoder, [encoder.with_specials(row) for row in ids], config=config)
-    boundary, shift = tag_pieces(params, states, config, encoder)
+    boundary, shift, joins = tag_pieces(params, states, config, encoder)
+    pieces = [slice(1, len(spans) + 1) for spans in offsets]
     return [
-        read_clauses(sentence, spans, boundary[row, 1 : len(spans) + 1], shift[row, 1 : len(spans) + 1])
+        read_clauses(sentence, spans, boundary[row, pieces[row]], shift[row, pieces[row]], joins[row, pieces[row]])
         for row, (sentence, spans) in enumerate(zip(sentences, offsets, strict=True))
     ]
 
@@ -372,7 +404,12 @@ def merge_repeated_tasks(sentence: str, clauses: Sequence[Clause], goals: Sequen
         if out and goal is not None and goal == last_goal and clause.written in (written[0] - 1, written[1] + 1):
             start, end = min(clause.start, out[-1].start), max(clause.end, out[-1].end)
             out[-1] = dataclasses.replace(
-                out[-1], text=sentence[start:end], start=start, end=end, written=min(clause.written, written[0])
+                out[-1],
+                text=sentence[start:end],
+                start=start,
+                end=end,
+                written=min(clause.written, written[0]),
+                task=None,
             )
             written = (min(clause.written, written[0]), max(clause.written, written[1]))
         else:

@@ -48,7 +48,7 @@ def test_piece_targets_mark_each_clause_and_its_shift():
 
     encoder = load_encoder(None)
     sentences = compound_set("kitchen", held_out=False, count=40, seed=1)
-    sequences, boundary, shift = piece_targets(encoder, sentences)
+    sequences, boundary, shift, joins = piece_targets(encoder, sentences)
     for row, s in enumerate(sentences):
         pieces = len(sequences[row]) - 2
         labels = boundary[row, 1 : pieces + 1]
@@ -60,8 +60,13 @@ def test_piece_targets_mark_each_clause_and_its_shift():
         assert sorted(range(len(s.goals)), key=lambda i: (i + written_shift[i], i)) == list(s.order)
         # reading the targets back gives the sentence's own segments
         _, offsets = piece_offsets(encoder, [s.text])
-        clauses = read_clauses(s.text, offsets[0], _one_hot(labels, 2), _one_hot(shift[row, 1 : pieces + 1]))
+        asks = joins[row, 1 : pieces + 1]
+        clauses = read_clauses(
+            s.text, offsets[0], _one_hot(labels, 2), _one_hot(shift[row, 1 : pieces + 1]), _one_hot(asks, 2)
+        )
         assert tuple(c.text for c in clauses) == s.segments()
+        # each clause's own words are what was put into the template, without the words that join it
+        assert tuple(c.asks for c in clauses) == tuple(own.strip(" ,;:.!?") for own in s.clauses())
 
 
 def _one_hot(labels, size=3):
