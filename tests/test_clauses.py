@@ -193,3 +193,32 @@ def test_a_clause_is_cut_once_where_the_tagger_hesitates_between_neighbouring_wo
         " ".join(words[words.index("but") : cut]),
         " ".join(words[cut:]),
     ]
+
+
+def test_a_clause_is_judged_by_its_asking_words_unless_the_whole_clause_is_refused():
+    from types import SimpleNamespace
+
+    from talar_jax.agent import Agent
+
+    refusal = 'asks not to "open the microwave"'
+    verdicts = {
+        "and then open the microwave": _verdict("and then open the microwave", "ambiguous", None),
+        "open the microwave": _verdict("open the microwave", "understood", 0),
+        "but don't open the microwave": _verdict("but don't open the microwave", "not understood", None, refusal),
+        "switch on the light": _verdict("switch on the light", "understood", 2),
+    }
+    judged = []
+
+    def judge(texts):
+        judged.append(list(texts))
+        return [verdicts[text] for text in texts]
+
+    clauses = [
+        Clause("and then open the microwave", 0, 27, 0, task="open the microwave"),
+        Clause("but don't open the microwave", 28, 56, 1, task="open the microwave"),  # "don't" taken for joining
+        Clause("switch on the light", 57, 76, 2),
+    ]
+    out = Agent._clause_verdicts(SimpleNamespace(judge=judge), clauses)
+    assert [v.goal for v in out] == [0, None, 2]
+    assert out[0].sentence == "open the microwave" and out[1].reason == refusal
+    assert len(judged) == 1  # one batch: the whole clauses and their asking words together
