@@ -255,6 +255,13 @@ class Env(abc.ABC):
         """Size of the observation without the goal part (the env's own observation)."""
 
     @property
+    def agent_observation_size(self) -> int:
+        """How many leading entries of the env's observation describe the agent itself (a robot's joints) rather than
+        the scene it acts on: 0 when the agent is not observed. What a task did to the scene is the change of the
+        other entries."""
+        return 0
+
+    @property
     def goal_feature_size(self) -> int:
         """Size of ``goal_features`` (0 for envs without a goal choice)."""
         return 0

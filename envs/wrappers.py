@@ -64,6 +64,7 @@ class Wrapper(Env):
     goal_feature_size = _read_through("goal_feature_size")
     goal_features = _read_through("goal_features")
     state_observation_size = _read_through("state_observation_size")
+    agent_observation_size = _read_through("agent_observation_size")
     observation_size = _read_through("observation_size")
     observe_goal = _read_through("observe_goal")
     episode_length = _read_through("episode_length")

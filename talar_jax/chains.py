@@ -10,9 +10,10 @@ Whether sub-task k holds is known two ways, recorded side by side for every clau
 - ``env_step``: the env's own success test of goal k (``state.metrics["success"]`` after ``env.retarget`` gave the
   running episode goal k): an oracle the agent does not have outside a simulator;
 - ``language_step``: the task language itself, the inside-out way: the TL generator's code of the change since the
-  clause began, g(s_clause_start, s_now), equals the clause's code. This needs no oracle, only the generator the
-  translator was trained against (``Agent.task_language``); agents without one record -1 throughout
-  (``ChainResult.language_available`` False).
+  clause began, g(s_clause_start, s_now), equals the clause's code, with the agent's own entries of s_now
+  (``env.agent_observation_size``: the kitchen's arm) held at the clause's start, so that the code reads what the
+  scene did, not where the arm went. This needs no oracle, only the generator the translator was trained against
+  (``Agent.task_language``); agents without one record -1 throughout (``ChainResult.language_available`` False).
 
 ``advance_on`` picks which of the two moves the chain on to the next clause; the other is only watched. The step
 numbers count the env steps from the start of the chain (the first step is 1); -1: not reached.
@@ -146,9 +147,16 @@ def _chain_fn(
     env = agent.env
     obs_size = env.state_observation_size
 
+    agent_size = env.agent_observation_size
+
     def holds_by_language(start: jax.Array, now: jax.Array, code: jax.Array) -> jax.Array:
         if not language:
             return jnp.bool_(False)
+        # The generator reads the scene's change, with the agent's own entries (the arm) held at the clause's start:
+        # it was trained on (s_i, s_T) of successful episodes, all of which end with the hand at the object, so it
+        # learnt the arm's posture as a cue and named a sub-task as soon as the arm set off towards it (a scripted
+        # microwave episode had the microwave's code from step 2, the env's success at step 160; arm held: step 108)
+        now = now.at[:agent_size].set(start[:agent_size])
         return jnp.all(jnp.abs(agent.task_language(start, now) - code) < 0.5)
 
     def chain(key: jax.Array, codes: jax.Array, goals: jax.Array):

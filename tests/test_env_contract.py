@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import envs
+from envs.wrappers import wrap_for_training
 
 NUM_ENVS, NUM_STEPS = 8, 120  # the long random rollout (C backend, time limits and auto-resets included)
 AGREE_STEPS, AGREE_ATOL = 4, 5e-3  # MJX (float32) vs MuJoCo C (float64): same reset key and actions, |obs diff| max
@@ -415,3 +416,22 @@ def test_mjx_on_a_cpu_warns_once_when_jax_has_started_without_the_flag():
     assert "XLA_FLAGS=--xla_cpu_use_fusion_emitters=false" in message and "twice as long" in message
     assert "\n" not in message and category == "UserWarning"
     assert filename == "<string>"  # it points at the user's line, not into envs
+
+
+@pytest.mark.parametrize("name", envs.ALL_ENVS)
+def test_the_agent_part_of_the_observation_is_the_agent_alone(name):
+    """``agent_observation_size`` leading entries describe the agent: moving it for a few steps with no contact
+    changes those entries and nothing else of the scene; wrappers read it through."""
+    env = envs.make(name, physics="c", noise_ratio=0.0) if name.startswith("kitchen") else envs.make(name, physics="c")
+    size = env.agent_observation_size
+    assert 0 <= size <= env.state_observation_size
+    assert wrap_for_training(env).agent_observation_size == size
+    if not name.startswith("kitchen"):
+        assert size == 0  # CLEVR's observation is the balls: the pusher is not observed
+        return
+    still = moved = env.reset(jax.random.key(0))
+    for _ in range(5):  # the fingers open in free space, away from every object; the scene settles the same
+        still = env.step(still, jnp.zeros(env.action_size))
+        moved = env.step(moved, jnp.zeros(env.action_size).at[7:].set(1.0))
+    change = np.abs(np.asarray(moved.obs - still.obs))[: env.state_observation_size]
+    assert change[:size].max() > 1e-3 and change[size:].max() < 1e-5

@@ -237,6 +237,10 @@ class KitchenEnv(Env):
         return tasks.OBSERVATION_SIZE
 
     @property
+    def agent_observation_size(self) -> int:
+        return tasks.NUM_ROBOT_JOINTS  # entries 0-8: the arm's and the fingers' joints
+
+    @property
     def goal_feature_size(self) -> int:
         """A one-hot of the sub-task; none in ``kitchen-all``."""
         return 0 if self.config.all_tasks else self._num_tasks
