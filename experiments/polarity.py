@@ -1,17 +1,25 @@
 """Fit and measure the polarity classifier the shipped agents read: ``python -m experiments.polarity``.
 
 Builds both envs' polarity sets (``talar_jax.language.polarity``: sentences that ask for a task, ask not to do it, or
-ask for its opposite), reads every sentence's token states with the encoder (cached), fits the ensemble on the train
-halves of both envs together, and measures it on each half: per label, the share of sentences an agent would act on
-as the task (probability of ``positive`` at least the threshold), and the risk-coverage curve of that threshold.
-Writes the parameters (``polarity.msgpack``) and their record (``polarity.json``: config, encoder, measures) into
-``--out`` (default: beside the shipped agents, where ``talar_jax.agent`` finds them), and the measures as a table
-into ``--report``. Deterministic: the same code and encoder give the same bytes.
+ask for its opposite), reads every sentence's token states with the encoder (cached; with ``--tuned-layers`` the
+states entering the layers it fine-tunes), fits the heads on the train halves of both envs together, and measures
+them on each half: per label, the share of sentences an agent would act on as the task (probability of
+``positive`` at least the threshold), and the risk-coverage curve of that threshold. Writes the parameters
+(``polarity.msgpack``, a fine-tuned top in float16) and their
+record (``polarity.json``: config, encoder, measures) into ``--out`` (default: beside the shipped agents, where
+``talar_jax.agent`` finds them), and the measures as a table into ``--report``. Deterministic: the same code and
+encoder give the same bytes.
+
+``--development`` fits on the train half's own train share and measures its development share, where settings
+(``--tuned-layers``, ``--top-learning-rate``, ...) are compared; it writes only ``--report``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
 from pathlib import Path
 
 import flax.serialization
@@ -21,8 +29,16 @@ from experiments.cli import ArgumentParser, check_outputs, command
 from experiments.reports import write_measures
 from talar_jax import runtime
 from talar_jax.agent import POLARITY_STEM, SHIPPED_AGENTS_DIR
-from talar_jax.confidence.polarity import POSITIVE, PolarityConfig, fit_polarity, polarity_probabilities
+from talar_jax.confidence.polarity import (
+    POSITIVE,
+    PolarityConfig,
+    fit_polarity,
+    polarity_probabilities,
+    polarity_states,
+    shipped_params,
+)
 from talar_jax.language import cached_sentence_features, load_encoder, stack_features
+from talar_jax.language.cache import TOKEN_READOUT, default_cache_dir
 from talar_jax.language.polarity import LABELS, polarity_set
 from talar_jax.provenance import provenance
 
@@ -63,26 +79,61 @@ def report_table(record: dict) -> str:
     return "\n".join(lines) + "\n\nRisk against coverage as the threshold moves:\n\n" + "\n".join(curve) + "\n"
 
 
+def cached_states(encoder, sentences: tuple[str, ...], config: PolarityConfig) -> np.ndarray:
+    """``polarity_states`` of the sentences, kept in the language cache folder (float16, as the token readout's)."""
+    if not config.tuned_layers:
+        return cached_sentence_features(encoder, sentences, TOKEN_READOUT, progress=True)
+    payload = json.dumps(["polarity-states", encoder.cache_key, config.tuned_layers, list(sentences)])
+    path = default_cache_dir() / f"polarity-{hashlib.sha256(payload.encode()).hexdigest()[:24]}.npy"
+    if path.is_file():
+        return np.load(path).astype(np.float32)
+    states = polarity_states(encoder, sentences, config, progress=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial.npy")
+    np.save(partial, states.astype(np.float16))
+    os.replace(partial, path)
+    return states
+
+
 def run_command(argv: list[str] | None = None) -> dict:
     runtime.start()
     parser = ArgumentParser(prog="python -m experiments.polarity", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=SHIPPED_AGENTS_DIR, help="folder of the parameters and record")
     parser.add_argument("--report", type=Path, default=None, help="a markdown file for the measures (optional)")
+    parser.add_argument(
+        "--development",
+        action="store_true",
+        help="fit on the train half's own train share and measure its development share (for choosing settings; "
+        "writes the report only, never the shipped files)",
+    )
+    defaults = PolarityConfig()
+    for name in ("tuned_layers", "top_learning_rate", "learning_rate", "steps", "positive_weight", "token_dropout"):
+        kind = type(getattr(defaults, name))
+        parser.add_argument(
+            f"--{name.replace('_', '-')}", type=kind, default=None, help=f"default {getattr(defaults, name)}"
+        )
     args = parser.parse_args(argv)
     check_outputs((args.out, "--out", "folder"), (args.report, "--report", "file"))
-    config = PolarityConfig()
+    overrides = {name: value for name, value in vars(args).items() if hasattr(defaults, name) and value is not None}
+    config = dataclasses.replace(defaults, **overrides)
     encoder = load_encoder(None)
-    sets = {env: polarity_set(env) for env in ENVS}
-    print("reading the polarity sets' token states (cached after the first run)", flush=True)
-    features = {env: cached_sentence_features(encoder, s.sentences, "tokens", progress=True) for env, s in sets.items()}
+    print("reading the polarity sets' states (cached after the first run)", flush=True)
+    sets, features = {}, {}
+    for env in ENVS:  # the states of the whole set, cached once for both the development split and the halves
+        whole = polarity_set(env)
+        states = cached_states(encoder, whole.sentences, config)
+        sets[env] = polarity_set(env, development=True) if args.development else whole
+        features[env] = states[~whole.held_out] if args.development else states
     train = [(features[env][~s.held_out], s.labels[~s.held_out]) for env, s in sets.items()]
     tokens = stack_features([row for features_of_env, _ in train for row in features_of_env])
-    print(f"fitting {config.members} members on {len(tokens)} sentences", flush=True)
-    members = fit_polarity(tokens, np.concatenate([y for _, y in train]), config)
+    print(f"fitting {config.members} heads on {len(tokens)} sentences", flush=True)
+    fitted = fit_polarity(tokens, np.concatenate([y for _, y in train]), config, encoder, progress=True)
+    params = shipped_params(fitted)  # measured as shipped: the top rounded to float16
     record = {**provenance(), "config": dataclasses.asdict(config), "labels": list(LABELS)}
     record.update(encoder=encoder.name, encoder_cache_key=encoder.cache_key, measures={})
+    encoder_config = encoder.config if config.tuned_layers else None
     for env, s in sets.items():
-        probabilities = polarity_probabilities(members, features[env], config)
+        probabilities = polarity_probabilities(params, features[env], config, encoder_config)
         record["measures"][env] = {
             half: {
                 "sentences": int((s.held_out == held).sum()),
@@ -92,8 +143,14 @@ def run_command(argv: list[str] | None = None) -> dict:
             }
             for half, held in (("train", False), ("held_out", True))
         }
-    params = flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(members))
-    write_measures(args.out, POLARITY_STEM, params, record, report_table(record), args.report)
+    if args.development:
+        table = "Development split of the train half (held_out: its development share).\n\n" + report_table(record)
+        if args.report is not None:
+            args.report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
+        print(table)
+        return record
+    state = flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(params))
+    write_measures(args.out, POLARITY_STEM, state, record, report_table(record), args.report)
     return record
 
 

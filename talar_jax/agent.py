@@ -52,6 +52,7 @@ from talar_jax.confidence.polarity import (
     POSITIVE,
     PolarityConfig,
     polarity_probabilities,
+    polarity_states,
 )
 from talar_jax.encodings import (
     ENCODING_FILE,
@@ -117,7 +118,7 @@ CONFIDENCE_FILE = "confidence.json"
 POLARITY_STEM = "polarity"
 """The polarity classifier every agent reads (``talar_jax.confidence.polarity``), beside the shipped agents as
 ``polarity.msgpack`` and ``polarity.json`` (``python -m experiments.polarity`` writes both); it reads one encoder's
-token states, named in the record."""
+states (and may fine-tune its top layers), so the record names the encoder."""
 POLARITY_PARAMS, POLARITY_RECORD = f"{POLARITY_STEM}.msgpack", f"{POLARITY_STEM}.json"
 JOIN_BELOW = 0.9
 """A clause that names nothing is joined to its neighbour when the parser's probability of the cut between them is
@@ -547,14 +548,15 @@ class Agent:
             self._polarity = load_polarity(self.encoder) or ()
         if not self._polarity:
             return None
-        members, config = self._polarity
-        tokens = features if features is not None and self.readout == TOKEN_READOUT else None
-        if tokens is None:
-            try:
-                tokens = sentence_features(self.encoder, list(sentences), TOKEN_READOUT)
-            except ValueError as error:
-                raise AgentError(str(error)) from None
-        return polarity_probabilities(members, tokens, config)
+        params, config = self._polarity
+        # the frozen classifier reads the token readout a token-reading agent has already encoded; a fine-tuned top
+        # reads the states entering it, one more encoder call
+        reused = features is not None and self.readout == TOKEN_READOUT and not config.tuned_layers
+        try:
+            states = features if reused else polarity_states(self.encoder, list(sentences), config)
+        except ValueError as error:
+            raise AgentError(str(error)) from None
+        return polarity_probabilities(params, states, config, self.encoder.config if config.tuned_layers else None)
 
     def _with_polarity(self, verdict: Verdict, probabilities: np.ndarray) -> Verdict:
         """The verdict, refused with its reason when the sentence does not ask for its task."""
@@ -768,13 +770,20 @@ def read_shipped_model(encoder: BertEncoder, stem: str, command: str, folder: Pa
         raise AgentError(f"{params_path} is damaged; {rebuild}") from None
 
 
-def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tuple[list, PolarityConfig] | None:
-    """The shipped polarity classifier's members and config, or None (see ``read_shipped_model``)."""
+def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tuple[dict, PolarityConfig] | None:
+    """The shipped polarity classifier's parameters (``PolarityModel``'s) and config, or None (see
+    ``read_shipped_model``)."""
     shipped = read_shipped_model(encoder, POLARITY_STEM, "python -m experiments.polarity", folder)
     if shipped is None:
         return None
-    state, record = shipped
-    return [state[key] for key in sorted(state, key=int)], PolarityConfig(**record["config"])
+    params, record = shipped
+    config = PolarityConfig(**record["config"])
+    if "params" not in params or ("top" in params["params"]) != bool(config.tuned_layers):
+        raise AgentError(
+            f"{folder / POLARITY_PARAMS} is not the classifier its record describes; rebuild it with: "
+            "python -m experiments.polarity"
+        )
+    return params, config
 
 
 def load_clause_parser(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR):

@@ -23,6 +23,10 @@ POLARITY_FILE = Path(__file__).resolve().parent / "data" / "polarity.json"
 LABELS: tuple[str, ...] = ("positive", "negated", "opposite")
 """What a sentence asks of its task: to do it, not to do it, or to undo it."""
 HALVES: tuple[str, ...] = ("train", "held_out")
+DEVELOPMENT_FRAMES, DEVELOPMENT_PHRASES, DEVELOPMENT_INSTRUCTIONS = 5, 4, 5
+"""The development split (``polarity_set(env, development=True)``) holds out every fifth train frame, every fourth
+train phrase and every fifth training instruction: settings are compared there, so that the held-out half is read
+once, by the classifier that ships."""
 CLEVR_GOALS_PER_FILL = 3
 
 
@@ -66,52 +70,77 @@ def _sentence(frame: str, phrase: tuple[str, str] | str) -> str:
     return text[0].upper() + text[1:]
 
 
-def _fills(label: str, task: dict) -> list[tuple[str, tuple[str, str] | str, bool]]:
-    """(frame, phrase, held out) for every frame of ``label`` and every phrase it takes."""
+def _fills(label: str, task: dict) -> list[tuple[str, tuple[str, str] | str, bool, bool]]:
+    """(frame, phrase, held out, developing) for every frame of ``label`` and every phrase it takes: held out when
+    the frame or the phrase is in the held-out half; developing when it is in the train half and the frame or the
+    phrase is in the development split's held-out share (``_developing``)."""
     frames = _ingredients()["frames"][label]
     verbs = task["do"] if label != "opposite" else task["undo"]
     out = []
     for frame_half, frame_list in frames.items():
-        for frame in frame_list:
+        for frame_index, frame in enumerate(frame_list):
             # a state frame names the state the sentence is about: the task done for "Leave {state}." (positive) and
             # "Don't leave {state}." (negated), undone for the opposite's "Leave {state}."
             phrases = (task["undone"] if label == "opposite" else task["done"]) if "{state}" in frame else verbs
             for phrase_half, phrase_list in phrases.items():
                 held = "held_out" in (frame_half, phrase_half)
-                out += [(frame, tuple(p) if isinstance(p, list) else p, held) for p in phrase_list]
+                for phrase_index, p in enumerate(phrase_list):
+                    developing = _developing(frame_index, DEVELOPMENT_FRAMES) or _developing(
+                        phrase_index, DEVELOPMENT_PHRASES
+                    )
+                    out.append((frame, tuple(p) if isinstance(p, list) else p, held, not held and developing))
     return out
 
 
-def polarity_set(env: str) -> PolaritySet:
+def _developing(index: int, every: int) -> bool:
+    """Whether the train half's ``index``-th frame, phrase or instruction is in the development split's held-out
+    share: every ``every``-th one, starting from the ``every``-th (so that the first phrase of a task, the one a
+    verdict names, is always trained on)."""
+    return index % every == every - 1
+
+
+def polarity_set(env: str, development: bool = False) -> PolaritySet:
     """The env's polarity sentences (deterministic): the frames filled per task, and the env's training instructions
-    (train half) and test instructions (held-out half) as ``positive``."""
-    rows: list[tuple[str, int, int, bool]] = []
+    (train half) and test instructions (held-out half) as ``positive``. With ``development``, the train half alone,
+    its ``held_out`` marking the development split's held-out share (``DEVELOPMENT_FRAMES``)."""
+    rows: list[tuple[str, int, int, bool, bool]] = []
     if env == "clevr":
         slots = clevr_slots()
         rng = np.random.default_rng(0)
         task = _ingredients()["clevr"]
         for label_index, label in enumerate(LABELS):
-            for frame, phrase, held in _fills(label, task):
+            for frame, phrase, held, developing in _fills(label, task):
                 for goal in rng.choice(len(slots), CLEVR_GOALS_PER_FILL, replace=False):
-                    rows.append((_filled(_sentence(frame, phrase), slots[goal]), label_index, int(goal), held))
+                    text = _filled(_sentence(frame, phrase), slots[goal])
+                    rows.append((text, label_index, int(goal), held, developing))
     else:
         names = kitchen_goal_names()
         for label_index, label in enumerate(LABELS):
             for name, task in _ingredients()[env].items():
-                rows += [(_sentence(f, p), label_index, names.index(name), h) for f, p, h in _fills(label, task)]
+                rows += [(_sentence(f, p), label_index, names.index(name), h, d) for f, p, h, d in _fills(label, task)]
     for split, held in (("train", False), ("test", True)):
         instructions = load_instructions(env, split)
-        rows += [(s, 0, int(g), held) for s, g in zip(instructions.sentences, instructions.goal_ids, strict=True)]
+        pairs = enumerate(zip(instructions.sentences, instructions.goal_ids, strict=True))
+        rows += [(s, 0, int(g), held, not held and _developing(i, DEVELOPMENT_INSTRUCTIONS)) for i, (s, g) in pairs]
     trained = set(load_instructions(env, "train").sentences)
     unique = {}
     for row in rows:  # a sentence made twice keeps its first label; both halves: held out, but for a training
         first = unique.setdefault(row[0], row)  # instruction (the agent itself was trained on it)
         if row[3] and not first[3] and row[0] not in trained:
-            unique[row[0]] = (*first[:3], True)
+            unique[row[0]] = (*first[:3], True, False)
         elif row[0] in trained and first[3]:
-            unique[row[0]] = (*first[:3], False)
-    sentences, labels, goals, held_out = zip(*unique.values(), strict=True)
-    return PolaritySet(env, sentences, np.array(labels, np.int32), np.array(goals, np.int32), np.array(held_out))
+            unique[row[0]] = (*first[:3], False, row[4])
+        elif row[4] and not first[4] and not unique[row[0]][3]:  # developing when any of its makings is
+            unique[row[0]] = (*unique[row[0]][:4], True)
+    kept = [row for row in unique.values() if not (development and row[3])]
+    sentences, labels, goals, held_out, developing = zip(*kept, strict=True)
+    return PolaritySet(
+        env,
+        sentences,
+        np.array(labels, np.int32),
+        np.array(goals, np.int32),
+        np.array(developing if development else held_out),
+    )
 
 
 def task_phrase(env: str, goal: int, goal_names: Sequence[str] | None = None) -> str:
