@@ -117,6 +117,8 @@ def run_command(argv: list[str] | None = None) -> dict:
     overrides = {name: value for name, value in vars(args).items() if hasattr(defaults, name) and value is not None}
     config = dataclasses.replace(defaults, **overrides)
     encoder = load_encoder(None)
+    if not 0 <= config.tuned_layers <= encoder.config.num_hidden_layers:
+        parser.error(f"--tuned-layers must be 0 .. {encoder.config.num_hidden_layers}, got {config.tuned_layers}")
     print("reading the polarity sets' states (cached after the first run)", flush=True)
     sets, features = {}, {}
     for env in ENVS:  # the states of the whole set, cached once for both the development split and the halves
