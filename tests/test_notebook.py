@@ -19,6 +19,9 @@ def test_the_quickstart_notebook_runs_and_shows_what_it_promises():
     assert 'asks for the opposite of "open the microwave door"' in text  # nor is the opposite of a task
     assert 'understood: "Don\'t forget to open the microwave." means microwave' in text  # a request all the same
     assert "success: True" in text
+    done_at = next(line for line in text.splitlines() if line.startswith("sub-tasks done at steps:"))
+    steps = [int(step) for step in done_at.split(":")[1].strip(" []").split(",")]
+    assert len(steps) == 3 and 0 < steps[0] < steps[1] < steps[2]  # the chain's three sub-tasks, one after another
     images = [output for output in outputs if "image/gif" in output.get("data", {})]
     assert images, "the episode's GIF is shown inline"
     assert any("image/png" in output.get("data", {}) for output in outputs), "the env's frame is drawn"
