@@ -112,7 +112,8 @@ def risk_coverage_table(measures: Measures, sentences: SentenceSet, calibrations
     sets, parts, goals = sentences.arrays()
     rows = (parts == HELD_OUT) & np.isin(sets, RISK_SETS)
     lines = [
-        "| measure | target share | threshold on its confidence (mean over seeds) | acted on | risk: wrong among acted |",
+        "| measure | target share | threshold on its confidence (mean over seeds) | acted on | "
+        "risk: wrong among acted |",
         "|---|---:|---:|---:|---:|",
     ]
     for label, calibration in calibrations.items():
