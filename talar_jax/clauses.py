@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from talar_jax.language.bert import BertConfig, EncoderTop, with_pretrained_top
+from talar_jax.language.bert import BertConfig, EncoderTop, top_and_head, with_pretrained_top
 from talar_jax.language.compound import clause_begins
 
 CONTINUES, BEGINS = range(2)
@@ -196,15 +196,9 @@ def fit_clause_parser(
     def schedule(rate):
         return optax.warmup_cosine_decay_schedule(0.0, rate, max(config.steps // 20, 1), config.steps)
 
-    # the tuned encoder layers learn slowly, the tagger's own layers (fresh) fast
-    optimizer = optax.multi_transform(
-        {
-            "tuned": optax.adamw(schedule(config.tuned_learning_rate), weight_decay=config.weight_decay),
-            "head": optax.adamw(schedule(config.learning_rate), weight_decay=config.weight_decay),
-        },
-        lambda params: jax.tree_util.tree_map_with_path(
-            lambda path, _: "tuned" if path[1].key == "top" else "head", params
-        ),
+    optimizer = top_and_head(
+        optax.adamw(schedule(config.tuned_learning_rate), weight_decay=config.weight_decay),
+        optax.adamw(schedule(config.learning_rate), weight_decay=config.weight_decay),
     )
 
     def masked_mean(logits, targets):

@@ -23,7 +23,7 @@ import numpy as np
 import optax
 from tqdm.auto import tqdm
 
-from talar_jax.language.bert import BertConfig, EncoderTop, with_pretrained_top
+from talar_jax.language.bert import BertConfig, EncoderTop, top_and_head, with_pretrained_top
 from talar_jax.language.cache import TOKEN_READOUT, TOKEN_SLOTS, max_word_pieces, sentence_features
 from talar_jax.language.encoder import BertEncoder
 from talar_jax.language.polarity import LABELS
@@ -165,9 +165,7 @@ def fit_polarity(
     params = with_pretrained_top(
         params, encoder.params, encoder.config.num_hidden_layers - config.tuned_layers, ("top",)
     )
-    top = optax.adamw(config.top_learning_rate, weight_decay=config.weight_decay)
-    groups = {name: "top" if name == "top" else "head" for name in params["params"]}
-    optimizer = optax.multi_transform({"head": heads, "top": top}, {"params": groups})
+    optimizer = top_and_head(optax.adamw(config.top_learning_rate, weight_decay=config.weight_decay), heads)
     width = int(np.any(features != 0, axis=-1).sum(axis=1).max())  # no step reads the zeros after every sentence
     return _fit(model, params, optimizer, features[:, :width], labels, weights, config, 0, progress)
 

@@ -10,6 +10,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 _ACTIVATIONS = {
     "gelu": lambda x: jax.nn.gelu(x, approximate=False),  # erf GELU (BERT, MiniLM)
@@ -191,6 +192,16 @@ def with_pretrained_top(params: dict, encoder_params: dict, first: int, path: tu
             raise ValueError(f"{path} holds {name}, below layer {first}")
         top["bert"][name] = jax.tree_util.tree_map(jnp.asarray, encoder_params["params"][name])
     return params
+
+
+def top_and_head(top: optax.GradientTransformation, head: optax.GradientTransformation) -> optax.GradientTransformation:
+    """One optimiser for a model holding an ``EncoderTop`` named "top": ``top`` for its pretrained layers (which should
+    move slowly, or they forget what the encoder knew), ``head`` for every other parameter (fresh ones, fast)."""
+
+    def labels(params):
+        return {"params": {name: "top" if name == "top" else "head" for name in params["params"]}}
+
+    return optax.multi_transform({"top": top, "head": head}, labels)
 
 
 def mean_pool(hidden: jax.Array, attention_mask: jax.Array, normalize: bool = True) -> jax.Array:
