@@ -51,7 +51,7 @@ class ShipArgs:
     """Folder of shipped agents (the agent goes to ``<out>/<name>``)."""
 
 
-TRAINING_ONLY_OPTIONS = ("start", "start_done_probability")
+TRAINING_ONLY_OPTIONS = ("start", "start_done_probability", "start_arm_noise", "start_arm")
 """Env options that shape how a policy was trained (where its episodes started), not the task: a shipped agent acts
 in the env as a user makes it, so they are left out of its config and named in its record."""
 

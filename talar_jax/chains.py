@@ -323,3 +323,27 @@ def chain_episode(
     )
     result = ChainResult(goals, *(np.asarray(x)[None] for x in steps), advance_on, language, budget)
     return ChainEpisode(result, np.asarray(qpos), np.asarray(clause), np.asarray(valid))
+
+
+def chain_endings(
+    agent: Any,
+    codes: np.ndarray,
+    goals: np.ndarray,
+    rng: jax.Array,
+    budget: int | None = None,
+    deterministic: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The chains ``run_chains`` runs (env test), with the physics positions at which each clause's sub-task held:
+    ``(reached_step (N, L), qpos (N, L, nq))``, qpos undefined where ``reached_step`` is -1. What a start drawn from a
+    policy's own endings is built from (``experiments.ended_postures``)."""
+    codes, goals, budget, language = _checked(agent, codes, goals, "env", budget)
+    length = int(goals.shape[1])
+    chain = _chain_fn(agent, length, budget, "env", deterministic, False, trajectory=True)
+
+    def ending(key, chain_codes, chain_goals):
+        (reached, _, _), (qpos, _, _) = chain(key, chain_codes, chain_goals)
+        return reached, qpos[jnp.maximum(reached, 0)]  # qpos[t]: after t steps, the step at which the clause held
+
+    keys = jax.random.split(rng, len(goals))
+    reached, qpos = jax.device_get(jax.jit(jax.vmap(ending))(keys, jnp.asarray(codes), jnp.asarray(goals)))
+    return np.asarray(reached), np.asarray(qpos)

@@ -164,6 +164,35 @@ def test_kitchen_after_subtask_start_puts_the_arm_where_a_done_sub_task_ends():
     )
 
 
+def test_kitchen_start_arm_draws_the_recorded_endings_and_keeps_the_scripted_draws():
+    """'ended' puts the arm at a recorded ending of a done sub-task (the shipped file), 'either' at one of the two,
+    and 'scripted' (the default) draws exactly what it drew before the option existed."""
+    from envs.kitchen.env import ENDED_POSTURES_FILE, POS_HIGH, POS_LOW
+
+    keys = jax.random.split(jax.random.key(2), 32)
+    options = {"physics": "c", "start": "after_subtask", "start_done_probability": 1.0, "noise_ratio": 0.0}
+    # (6, K, 9), clipped as the env clips a start: a pushed arm can end a hair outside its servo range
+    endings = np.clip(np.load(ENDED_POSTURES_FILE)["postures"], POS_LOW, POS_HIGH)
+    scripted = tasks.posture_targets("scripted")
+
+    def arms(**extra):
+        env = envs.make("kitchen", **options, start_arm_noise=0.0, **extra)
+        return np.asarray(jax.jit(jax.vmap(env.reset))(keys).obs[:, :9])
+
+    def nearest(arm, postures):  # the max-joint gap to the nearest of (..., 9) postures
+        return np.abs(arm[:, None] - postures.reshape(1, -1, 9)).max(-1).min(-1)
+
+    ended, either, default = arms(start_arm="ended"), arms(start_arm="either"), arms()
+    assert (nearest(ended, endings) < 5e-3).all()
+    assert (nearest(ended, scripted) > 0.05).mean() > 0.8  # the endings are not the scripted postures
+    from_endings = nearest(either, endings) < 5e-3
+    assert 0 < from_endings.sum() < len(keys) and (nearest(either[~from_endings], scripted) < 5e-3).all()
+    np.testing.assert_array_equal(default, arms(start_arm="scripted"))
+    assert (nearest(default, scripted) < 5e-3).all()
+    with pytest.raises(ValueError, match="start_arm"):
+        envs.make("kitchen", physics="c", start_arm="anywhere")
+
+
 def test_every_kitchen_sub_task_can_be_done_with_all_the_others_done():
     """The 'others_done' start is a kitchen a task can still be done in: the scripted controller does each sub-task
     with the five others already done (nothing in the way, no object knocked out of place)."""

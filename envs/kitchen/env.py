@@ -17,6 +17,10 @@ from envs.kitchen import tasks
 INTEGRATORS: tuple[str, ...] = ("euler", "implicitfast")
 ALL_TASKS_REWARDS: tuple[str, ...] = ("new", "count")
 START_STATES: tuple[str, ...] = ("reset", "others_done", "after_subtask")
+START_ARMS: tuple[str, ...] = ("scripted", "ended", "either")
+ENDED_POSTURES_FILE = Path(__file__).resolve().parent / "ended_postures.npz"
+"""Arm postures in which a trained policy ended each sub-task in chains (``postures``: (sub-tasks, K, 9)), written by
+``python -m experiments.ended_postures``; read by ``start_arm='ended'`` or ``'either'``."""
 STILLNESS_TESTS: tuple[str, ...] = ("observed", "true")
 
 # Clip bounds of the servo targets (the original robot config's ``pos_bound``; note joint 6's [0, 3.8]).
@@ -110,6 +114,12 @@ class KitchenConfig(EnvConfig):
     'after_subtask' is 'others_done' with the arm where a chain leaves it: at the scripted controller's posture at
     success of one of the done sub-tasks (drawn uniformly; the reset posture when none is done), offset by this.
     Under 'others_done' the arm always starts at the reset posture, which a chain's second clause never sees."""
+    start_arm: str = "scripted"
+    """With ``start='after_subtask'``: which posture a done sub-task leaves the arm in. 'scripted': the scripted
+    controller's at success, one point per sub-task. 'ended': one drawn from the postures in which a trained policy
+    ended that sub-task in chains (``ENDED_POSTURES_FILE``): a 7-DoF arm reaches a handle in many ways, and a policy's
+    own endings lie up to 1.4 rad per joint from the scripted one. 'either': each start one of the two, evenly.
+    Sub-tasks the file lacks (the hinge cabinet) keep the scripted posture."""
 
 
 @struct.dataclass
@@ -166,6 +176,7 @@ class KitchenEnv(Env):
         check_choice("stillness", config.stillness, STILLNESS_TESTS)
         check_choice("all_tasks_reward", config.all_tasks_reward, ALL_TASKS_REWARDS)
         check_choice("start", config.start, START_STATES)
+        check_choice("start_arm", config.start_arm, START_ARMS)
         if not 0.0 <= config.start_done_probability <= 1.0:
             raise ValueError(f"start_done_probability must lie in [0, 1], got {config.start_done_probability}")
         if config.start_arm_noise < 0:
@@ -193,6 +204,7 @@ class KitchenEnv(Env):
         self._control_dt = float(self.config.timestep * self.config.substeps)
         self._num_tasks = len(tasks.ALL_TASK_NAMES) if self.config.hinge_cabinet_task else tasks.NUM_TASKS
         self._posture_targets = tasks.posture_targets(self.config.posture_targets, self._num_tasks)
+        self._start_postures = self._read_start_postures()
 
     def load_model(self) -> mujoco.MjModel:
         if self.config.arm_collisions:
@@ -371,14 +383,37 @@ class KitchenEnv(Env):
         obs = jnp.where(at_goal, goal_obs, jnp.asarray(tasks.INIT_OBS))
         return jnp.asarray(self._init_qpos).at[self._qpos_index].set(obs[self._obs_index])
 
+    def _read_start_postures(self) -> np.ndarray:
+        """(num_goals, K, 9) the postures ``arm_after`` draws from: the scripted one (K = 1) under
+        ``start_arm='scripted'``, else the recorded endings (``ENDED_POSTURES_FILE``), the scripted posture standing in
+        for the sub-tasks the file lacks."""
+        scripted = tasks.posture_targets("scripted", self._num_tasks)[:, None]
+        if self.config.start_arm == "scripted":
+            return scripted
+        if not ENDED_POSTURES_FILE.is_file():
+            raise FileNotFoundError(f"start_arm={self.config.start_arm!r} reads {ENDED_POSTURES_FILE}: missing")
+        with np.load(ENDED_POSTURES_FILE) as recorded:
+            ended = np.asarray(recorded["postures"], np.float32)[: self._num_tasks]
+        missing = self._num_tasks - len(ended)
+        filler = np.repeat(scripted[len(ended) :], ended.shape[1], axis=1) if missing else ended[:0]
+        return np.concatenate([ended, filler])
+
     def arm_after(self, rng: jax.Array, done: jax.Array, qpos: jax.Array) -> jax.Array:
-        """``qpos`` with the arm at the scripted posture at success of one of the ``done`` sub-tasks (uniformly; kept
-        when none is done), each arm joint offset uniformly by up to ``start_arm_noise`` (``start='after_subtask'``).
-        The fingers keep the posture's opening: an offset there would open or shut the hand for no reason."""
+        """``qpos`` with the arm at a posture in which one of the ``done`` sub-tasks (uniformly) leaves it, kept when
+        none is done, each arm joint offset uniformly by up to ``start_arm_noise`` (``start='after_subtask'``). The
+        posture is the scripted controller's at success or a recorded ending, as ``start_arm`` says. The fingers keep
+        the posture's opening: an offset there would open or shut the hand for no reason."""
         rng_task, rng_noise = jax.random.split(rng)
-        postures = jnp.asarray(tasks.posture_targets("scripted", self._num_tasks))
         last = jax.random.categorical(rng_task, jnp.where(done, 0.0, -jnp.inf))
-        arm = jnp.where(jnp.any(done), postures[last], qpos[: tasks.NUM_ROBOT_JOINTS])
+        posture = jnp.asarray(tasks.posture_targets("scripted", self._num_tasks))[last]
+        if self.config.start_arm != "scripted":
+            # keys of their own, so that 'scripted' draws exactly what it always drew
+            rng_pick, rng_which = jax.random.split(jax.random.fold_in(rng, 3))
+            endings = jnp.asarray(self._start_postures)[last]  # (K, 9)
+            ended = endings[jax.random.randint(rng_pick, (), 0, endings.shape[0])]
+            use_ended = jnp.bool_(True) if self.config.start_arm == "ended" else jax.random.bernoulli(rng_which)
+            posture = jnp.where(use_ended, ended, posture)
+        arm = jnp.where(jnp.any(done), posture, qpos[: tasks.NUM_ROBOT_JOINTS])
         noise = self.config.start_arm_noise * jax.random.uniform(rng_noise, (7,), minval=-1.0, maxval=1.0)
         arm = jnp.clip(arm.at[:7].add(noise), POS_LOW, POS_HIGH)
         return qpos.at[: tasks.NUM_ROBOT_JOINTS].set(arm)
