@@ -22,7 +22,7 @@ import numpy as np
 from experiments.cli import READERS, ArgumentParser, check_outputs, command
 from experiments.reports import write_measures
 from talar_jax import runtime
-from talar_jax.agent import CLAUSES_STEM, SHIPPED_AGENTS_DIR, load
+from talar_jax.agent import CLAUSES_STEM, SHIPPED_AGENTS_DIR, load, read_shipped_model
 from talar_jax.clauses import (
     ClauseParserConfig,
     fit_clause_parser,
@@ -30,6 +30,7 @@ from talar_jax.clauses import (
     piece_states,
     piece_targets,
     stored,
+    vocabulary_words,
 )
 from talar_jax.language import load_encoder
 from talar_jax.language.compound import compound_set
@@ -41,6 +42,8 @@ TRAIN_SENTENCES = 2000
 """Compound sentences per env in the train half."""
 HELD_OUT_SENTENCES = 300
 """Compound sentences per env in the held-out half."""
+EXTENSIONS = ("json", "msgpack")
+"""A fitted parser's two files: its record and its parameters."""
 
 
 def _normalised(text: str) -> str:
@@ -100,13 +103,45 @@ def run_command(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--sentences", type=READERS[int], default=TRAIN_SENTENCES, help="compound sentences per env to fit on"
     )
+    parser.add_argument(
+        "--parser",
+        type=Path,
+        default=None,
+        help="measure the parser already fitted in this folder (its clauses.msgpack and clauses.json) instead of "
+        "fitting one; --out is then not written",
+    )
     args = parser.parse_args(argv)
     if args.sentences < 1:
         parser.error(f"--sentences must be at least 1, got {args.sentences}")
     check_outputs((args.out, "--out", "folder"), (args.report, "--report", "file"))
-    config = ClauseParserConfig()
+    if args.parser is not None and not all((args.parser / f"{CLAUSES_STEM}.{ext}").is_file() for ext in EXTENSIONS):
+        parser.error(f"--parser {args.parser} holds no {CLAUSES_STEM}.json and {CLAUSES_STEM}.msgpack")
     encoder = load_encoder(None)
-    train = [s for seed, env in enumerate(ENVS) for s in compound_set(env, False, args.sentences, seed=seed)]
+    if args.parser is not None:
+        fitted = read_shipped_model(encoder, CLAUSES_STEM, "python -m experiments.clauses", args.parser)
+        if fitted is None:
+            parser.error(f"--parser {args.parser} holds no clause parser of this encoder")
+        params, fitted_record = fitted
+        config = ClauseParserConfig(**fitted_record["config"])
+        record = {**provenance(), "config": fitted_record["config"], "parser": str(args.parser)}
+        record["measures"] = measure_parser(params, config, encoder)
+        write_measures_report(record, args.report)
+        return record
+    config = ClauseParserConfig()
+    words = vocabulary_words(encoder) if config.role_share else ()
+    train = [
+        s
+        for seed, env in enumerate(ENVS)
+        for s in compound_set(
+            env,
+            False,
+            args.sentences,
+            seed=seed,
+            words=words,
+            role_share=config.role_share,
+            trim_share=config.trim_share,
+        )
+    ]
     print(f"reading the word-piece states of {len(train)} compound sentences", flush=True)
     sequences, place, shift, joins = piece_targets(encoder, train)
     states = piece_states(encoder, sequences, np.float16, config)
@@ -125,19 +160,35 @@ def run_command(argv: list[str] | None = None) -> dict:
     record = {**provenance(), "config": dataclasses.asdict(config), "train_sentences_per_env": args.sentences}
     record.update(encoder=encoder.name, encoder_cache_key=encoder.cache_key, measures={})
     params_bytes = flax.serialization.msgpack_serialize(params)
+    record["measures"] = measure_parser(params, config, encoder)
+    write_measures(args.out, CLAUSES_STEM, params_bytes, record, report_table(record), args.report)
+    return record
+
+
+def measure_parser(params, config: ClauseParserConfig, encoder) -> dict:
+    """Per env, the parser's measures on the held-out compound sentences and the share of plain instructions it
+    keeps whole."""
+    measures = {}
     for env_index, env in enumerate(ENVS):
         print(f"measuring on {env}'s held-out compound sentences", flush=True)
         held = compound_set(env, True, HELD_OUT_SENTENCES, seed=len(ENVS) + env_index)
         agent = load(env)
-        agent.clause_parser = (params, config)  # the parser just fitted, wherever --out is
+        agent.clause_parser = (params, config)  # the parser measured, wherever it is stored
         parsed = parse_clauses(params, encoder, [s.text for s in held], config)
         whole = {}
         for split in ("train", "test"):
             plain = list(load_instructions(env, split).sentences)
             whole[split] = float(np.mean([len(c) == 1 for c in parse_clauses(params, encoder, plain, config)]))
-        record["measures"][env] = {"held_out": measure(agent, held, parsed), "plain_instructions_one_clause": whole}
-    write_measures(args.out, CLAUSES_STEM, params_bytes, record, report_table(record), args.report)
-    return record
+        measures[env] = {"held_out": measure(agent, held, parsed), "plain_instructions_one_clause": whole}
+    return measures
+
+
+def write_measures_report(record: dict, report: Path | None) -> None:
+    """The measures of a parser measured again (``--parser``): printed, and written to ``report`` when given."""
+    table = report_table(record)
+    if report is not None:
+        report.write_text(f"Made by `{record['command']}` at commit {record['commit']}.\n\n{table}")
+    print(table)
 
 
 main = command(run_command)

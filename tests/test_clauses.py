@@ -43,11 +43,65 @@ def test_held_out_half_uses_only_test_instructions():
     assert whole and all(c in test for c in whole)
 
 
-def test_piece_targets_mark_each_clause_and_its_shift():
+ROLE_WORDS = ("quartz", "harbor", "lilac")
+
+
+def test_role_joins_are_random_words_where_a_clause_begins():
+    plain = compound_set("kitchen", held_out=False, count=60, seed=3)
+    assert compound_set("kitchen", held_out=False, count=60, seed=3, words=ROLE_WORDS) == plain  # share 0: as before
+    role = compound_set("kitchen", held_out=False, count=60, seed=3, words=ROLE_WORDS, role_share=0.5)
+    assert role == compound_set("kitchen", held_out=False, count=60, seed=3, words=ROLE_WORDS, role_share=0.5)
+    assert role != plain
+    with_words = [s for s in role if any(w in s.text.lower() for w in ROLE_WORDS)]
+    several = [s for s in with_words if len(s.goals) > 1]
+    assert several and any(len(s.goals) == 1 for s in with_words)  # joins, and one clause padded
+    for s in several:  # a random word between two clauses belongs to the later one, never to a task's own words
+        own = " ".join(s.clauses()).lower()
+        assert not any(w in own.split() for w in ROLE_WORDS)
+    with pytest.raises(ValueError):
+        compound_set("kitchen", held_out=True, count=5, words=ROLE_WORDS, role_share=0.5)
+
+
+def test_trimmed_connectives_lose_their_first_words_only_in_the_written_order():
+    from talar_jax.language.compound import SLOT, UNIT, trimmed
+
+    rng = np.random.default_rng(0)
+    seen = {trimmed(rng, "<a>, and afterwards <b>", UNIT) for _ in range(40)}
+    assert seen == {"<a>, afterwards <b>", "<a>, <b>"}
+    assert {trimmed(rng, "<1.> After that, <2>", SLOT) for _ in range(40)} == {"<1.> That, <2>", "<1.> <2>"}
+    # the clause done first written second: its connective says the order, and is kept whole
+    assert trimmed(rng, "<2> after you <1:do>", SLOT) == "<2> after you <1:do>"
+    trimmed_set = compound_set("kitchen", held_out=False, count=60, seed=3, trim_share=0.5)
+    assert trimmed_set != compound_set("kitchen", held_out=False, count=60, seed=3)
+    with pytest.raises(ValueError):
+        compound_set("kitchen", held_out=True, count=5, trim_share=0.5)
+
+
+def test_measuring_a_folder_without_a_parser_is_one_usage_error(tmp_path, capsys):
+    from experiments.clauses import main
+
+    assert main(["--parser", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "holds no clauses.json" in err and "Traceback" not in err
+
+
+def test_vocabulary_words_are_whole_words():
+    from talar_jax.clauses import vocabulary_words
+    from talar_jax.language import load_encoder
+
+    words = vocabulary_words(load_encoder(None))
+    assert len(words) > 10_000 and "microwave" in words
+    assert all(w.isalpha() and len(w) > 1 for w in words) and not any(w.startswith("##") for w in words)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.5])
+def test_piece_targets_mark_each_clause_and_its_shift(share):
     from talar_jax.language import load_encoder
 
     encoder = load_encoder(None)
-    sentences = compound_set("kitchen", held_out=False, count=40, seed=1)
+    sentences = compound_set(
+        "kitchen", held_out=False, count=40, seed=1, words=ROLE_WORDS, role_share=share, trim_share=share
+    )
     sequences, boundary, shift, joins = piece_targets(encoder, sentences)
     for row, s in enumerate(sentences):
         pieces = len(sequences[row]) - 2

@@ -33,6 +33,10 @@ CLAUSE_COUNTS = (1, 2, 2, 2, 3, 3, 4, 5, 6)
 sentence stays one clause, up to the kitchen's six tasks."""
 NEGATED_SHARE = 0.1
 """Share of clauses filled with a negation or an opposite of their task."""
+ROLE_SEPARATORS = (", ", ". ", "; ", " ")
+"""What may stand between a clause and the connective of a role join (``role_join``)."""
+ROLE_WORDS = (0, 1, 1, 2, 2, 3)
+"""Words in a role join's connective, drawn uniformly from this list (0: the next clause simply follows)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,14 +153,79 @@ def _fill(template: str, pattern: re.Pattern, values: dict[str, tuple[str, list]
     return "".join(out), spans
 
 
-def _pair(rng, fillers: _Fillers, templates: list[str], clauses: list[tuple[int, bool]], first: int):
-    """A filled template for the clauses ``first`` (done first) and ``first + 1`` (or one clause alone)."""
+def role_join(rng: np.random.Generator, words: Sequence[str], first: str = "<a>", second: str = "<b>") -> str:
+    """A join of ``first`` and ``second`` (done in that order) by a connective of random ``words``: a separator
+    (``ROLE_SEPARATORS``) and ``ROLE_WORDS`` words, or nothing but the separator. It carries no meaning, so a parser
+    fitted on it learns where a clause begins from the role of the words (a new request follows a finished one)
+    rather than from the few connectives the templates spell; ``words`` are whole words of the encoder's own
+    vocabulary, so nothing in it is a list of connectives."""
+    separator = ROLE_SEPARATORS[rng.integers(len(ROLE_SEPARATORS))]
+    count = int(rng.choice(ROLE_WORDS)) if len(words) else 0
+    connective = " ".join(words[i] for i in rng.integers(len(words), size=count))
+    if not connective:
+        return f"{first}{separator}{second}"
+    if separator.startswith("."):
+        connective = _capitalised(connective)
+    comma = "," if rng.random() < 0.5 else ""
+    return f"{first}{separator}{connective}{comma} {second}"
+
+
+def trimmed(rng: np.random.Generator, template: str, pattern: re.Pattern) -> str:
+    """``template`` with one or more of the first words of the connective between its two slots left out ("<a>, and
+    afterwards <b>" -> "<a>, afterwards <b>"), when the clause done first is written first (what is left of a
+    connective in the order the clauses are done still keeps that order, or means nothing); else unchanged. The
+    data's connectives put their telling word after "and" or "but": "afterwards" always continues a clause begun by
+    "and", and a parser fitted on them alone does not cut at ". Afterwards," either."""
+    slots = list(pattern.finditer(template))
+    if len(slots) != 2 or slots[0].group(1) not in ("1", "a"):
+        return template
+    between = template[slots[0].end() : slots[1].start()]
+    lead = between[: len(between) - len(between.lstrip(" ,;:.!?"))]
+    words = between[len(lead) :].split()
+    if not words:
+        return template
+    rest = " ".join(words[int(rng.integers(1, len(words) + 1)) :])
+    sentence_slot = pattern is SLOT and slots[0].group(2) == "."  # "<1.>": the slot brings its own full stop
+    if lead.strip().endswith((".", "?", "!")) or (sentence_slot and not lead.strip()):
+        rest = _capitalised(rest)
+    between = lead + rest + " " if rest else (lead if lead.endswith(" ") else lead + " ")
+    return template[: slots[0].end()] + between + template[slots[1].start() :]
+
+
+def _padded(rng: np.random.Generator, words: Sequence[str]) -> str:
+    """A one-clause template with random ``words`` before or after the clause (which stays one clause: words that
+    ask for nothing never begin one)."""
+    filler = " ".join(words[i] for i in rng.integers(len(words), size=int(rng.integers(1, 3))))
+    return f"{_capitalised(filler)}, <1>" if rng.random() < 0.5 else f"<1>, {filler}"
+
+
+def _pair(
+    rng,
+    fillers: _Fillers,
+    templates: list[str],
+    clauses: list[tuple[int, bool]],
+    first: int,
+    words: Sequence[str] = (),
+    role_share: float = 0.0,
+    trim_share: float = 0.0,
+):
+    """A filled template for the clauses ``first`` (done first) and ``first + 1`` (or one clause alone); with
+    ``role_share`` > 0, that share of them joined by ``role_join`` of ``words`` (one clause: padded with them), and
+    ``trim_share`` of the others ``trimmed``."""
+    role = role_share > 0 and rng.random() < role_share
     if len(clauses) == 1:
         goal, positive = clauses[0]
         form = "." if rng.random() < 0.5 else ""
         text = fillers.clause(rng, goal, form, positive)
-        return text, [(0, len(text), first)]
-    template = templates[rng.integers(len(templates))]
+        if not role:
+            return text, [(0, len(text), first)]
+        return _fill(_padded(rng, words), SLOT, {"<1>": (_fragment(text), [(0, len(_fragment(text)), first)])})
+    if role:
+        template = role_join(rng, words, "<1>", "<2>")
+    else:
+        template = templates[rng.integers(len(templates))]
+        if trim_share > 0 and rng.random() < trim_share:
+            template = trimmed(rng, template, SLOT)
     values = {}
     for match in SLOT.finditer(template):
         index = int(match.group(1)) - 1
@@ -166,19 +235,38 @@ def _pair(rng, fillers: _Fillers, templates: list[str], clauses: list[tuple[int,
     return _fill(template, SLOT, values)
 
 
-def compound_sentence(rng: np.random.Generator, fillers: _Fillers, half: str, goals: list[int], positive: list[bool]):
-    """One sentence asking for ``goals`` in this order (``positive`` per clause)."""
+def compound_sentence(
+    rng: np.random.Generator,
+    fillers: _Fillers,
+    half: str,
+    goals: list[int],
+    positive: list[bool],
+    words: Sequence[str] = (),
+    role_share: float = 0.0,
+    trim_share: float = 0.0,
+):
+    """One sentence asking for ``goals`` in this order (``positive`` per clause); ``role_share`` of its templates and
+    joins are ``role_join`` s of ``words`` and ``trim_share`` of the others ``trimmed`` (0: only the data's own,
+    drawn exactly as before)."""
     ingredients = _ingredients()
     pairs, joins = ingredients["pairs"][half], ingredients["joins"][half]
     units, index = [], 0
     while index < len(goals):  # group the clauses into units of one or two, in the order they are done
         size = 2 if index + 1 < len(goals) and rng.random() < 0.6 else 1
         clauses = list(zip(goals[index : index + size], positive[index : index + size], strict=True))
-        units.append(_pair(rng, fillers, pairs, clauses, index))
+        # a clause alone in a unit of a longer sentence is never padded: words after it would read as the next
+        # clause's connective, and words before it as the end of the clause before
+        share = role_share if size == 2 or len(goals) == 1 else 0.0
+        units.append(_pair(rng, fillers, pairs, clauses, index, words, share, trim_share))
         index += size
     text, spans = units[0]
     for unit in units[1:]:
-        join = joins[rng.integers(len(joins))]
+        if role_share > 0 and rng.random() < role_share:
+            join = role_join(rng, words)
+        else:
+            join = joins[rng.integers(len(joins))]
+            if trim_share > 0 and rng.random() < trim_share:
+                join = trimmed(rng, join, UNIT)
         text = text.rstrip(".!?")  # the join brings its own punctuation
         spans = [(start, min(end, len(text)), clause) for start, end, clause in spans]
         text, spans = _fill(join, UNIT, {"<a>": (text, spans), "<b>": unit})
@@ -205,9 +293,23 @@ def compound_sentences(env: str, goal_rows, held_out: bool = True, seed: int = 0
     return [compound_sentence(rng, fillers, half, [int(g) for g in row], [True] * len(row)) for row in goal_rows]
 
 
-def compound_set(env: str, held_out: bool, count: int, seed: int = 0, negated_share: float = NEGATED_SHARE):
+def compound_set(
+    env: str,
+    held_out: bool,
+    count: int,
+    seed: int = 0,
+    negated_share: float = NEGATED_SHARE,
+    words: Sequence[str] = (),
+    role_share: float = 0.0,
+    trim_share: float = 0.0,
+):
     """``count`` compound sentences of ``env`` from one half (deterministic for a seed): distinct goals per sentence
-    in random order, ``CLAUSE_COUNTS`` clauses each (at most the env's number of goals)."""
+    in random order, ``CLAUSE_COUNTS`` clauses each (at most the env's number of goals). With ``role_share`` > 0
+    (the train half only), that share of the templates and joins are ``role_join`` s of ``words`` instead, and that
+    share of the sentences of one clause are padded with ``words``; ``trim_share`` of the other templates and joins
+    are ``trimmed``."""
+    if (role_share and not len(words)) or (held_out and (role_share or trim_share)):
+        raise ValueError("role joins and trimmed connectives are for the train half; role joins need words")
     rng = np.random.default_rng(seed)
     fillers = _Fillers(env, held_out)
     half = "held_out" if held_out else "train"
@@ -216,5 +318,5 @@ def compound_set(env: str, held_out: bool, count: int, seed: int = 0, negated_sh
         length = min(int(rng.choice(CLAUSE_COUNTS)), len(fillers.goals))
         goals = [int(g) for g in rng.choice(fillers.goals, length, replace=False)]
         positive = [bool(rng.random() >= negated_share) for _ in goals]
-        out.append(compound_sentence(rng, fillers, half, goals, positive))
+        out.append(compound_sentence(rng, fillers, half, goals, positive, words, role_share, trim_share))
     return out
