@@ -47,10 +47,10 @@ from talar_jax.checkpoint import load_tree, read_json_record
 from talar_jax.clauses import ClauseParserConfig, join_fragments, merge_repeated_tasks, parse_clauses
 from talar_jax.confidence import NOT_UNDERSTOOD, Calibration, ConfidenceError, Plan, Understanding, Verdict
 from talar_jax.confidence.polarity import (
-    NEGATED,
-    OPPOSITE,
     POSITIVE,
+    UNKNOWN,
     PolarityConfig,
+    judged_classes,
     polarity_probabilities,
     polarity_states,
 )
@@ -72,7 +72,7 @@ from talar_jax.language import (
     readout_features,
     sentence_features,
 )
-from talar_jax.language.polarity import LABELS as POLARITY_LABELS
+from talar_jax.language.polarity import CLASSES as POLARITY_CLASSES
 from talar_jax.language.polarity import task_phrase
 from talar_jax.networks import make_inference_fn, make_ppo_networks
 from talar_jax.report import LANGUAGE_RECORD
@@ -542,7 +542,7 @@ class Agent:
         return [self._with_polarity(v, p) for v, p in zip(verdicts, probabilities, strict=True)]
 
     def polarity(self, sentences: Sequence[str], features: np.ndarray | None = None) -> np.ndarray | None:
-        """(S, 3) the polarity classifier's probability of each of ``LABELS`` per sentence, or None when no
+        """(S, classes) the polarity classifier's probability of each of ``CLASSES`` per sentence, or None when no
         classifier reads this run's encoder (``features``: their ``encode`` output, when already at hand)."""
         if self._polarity is None:
             self._polarity = load_polarity(self.encoder) or ()
@@ -559,11 +559,18 @@ class Agent:
         return polarity_probabilities(params, states, config, self.encoder.config if config.tuned_layers else None)
 
     def _with_polarity(self, verdict: Verdict, probabilities: np.ndarray) -> Verdict:
-        """The verdict, refused with its reason when the sentence does not ask for its task."""
-        config = self._polarity[1]
-        if probabilities[POSITIVE] >= config.act_threshold:
+        """The verdict, refused with its reason when the sentence does not ask for its task, or names something the
+        agent does not know. A sentence the calibration already refuses as naming no goal keeps its own reason for an
+        unknown object (it is just as true, and the clause parser joins such a fragment to its neighbour)."""
+        judged = int(judged_classes(probabilities[None], self._polarity[1])[0])
+        if judged == POSITIVE:
             return verdict
-        label = POLARITY_LABELS[NEGATED if probabilities[NEGATED] >= probabilities[OPPOSITE] else OPPOSITE]
+        label = POLARITY_CLASSES[judged]
+        if judged == UNKNOWN:
+            if verdict.verdict == NOT_UNDERSTOOD:
+                return dataclasses.replace(verdict, goal=None, polarity=label)
+            reason = "names something this agent does not know"
+            return dataclasses.replace(verdict, verdict=NOT_UNDERSTOOD, goal=None, polarity=label, reason=reason)
         goal = verdict.goal if verdict.goal is not None else verdict.likeliest
         task = task_phrase(self.env_name, goal, self.env.goal_names)
         reason = f'asks not to "{task}"' if label == "negated" else f'asks for the opposite of "{task}"'
@@ -777,7 +784,8 @@ def load_polarity(encoder: BertEncoder, folder: Path = SHIPPED_AGENTS_DIR) -> tu
     if shipped is None:
         return None
     params, record = shipped
-    config = PolarityConfig(**record["config"])
+    # a record from before the unknown class has no "classes": it tells its labels apart
+    config = PolarityConfig(**{"classes": len(record.get("labels", POLARITY_CLASSES)), **record["config"]})
     if "params" not in params or ("top" in params["params"]) != bool(config.tuned_layers):
         raise AgentError(
             f"{folder / POLARITY_PARAMS} is not the classifier its record describes; rebuild it with: "

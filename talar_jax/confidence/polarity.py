@@ -4,10 +4,12 @@ Sentence-similarity encoders place "turn off the light" next to "turn on the lig
 sentence with positive instructions can tell them apart. ``PolarityClassifier`` reads the encoder's state of every
 word piece instead (the token readout, as TALAR's translator does) and is fitted on the project's polarity sets
 (``talar_jax.language.polarity``): the attention learns which pieces carry the polarity in context, so that "don't
-forget to open it" stays positive while "don't open it" does not. A few heads are kept (``PolarityModel``); their
-mean probabilities are what an agent reads. The model can fine-tune the encoder's top layers with the heads
-(``PolarityConfig.tuned_layers``); the shipped one does not, since that read the held-out half worse. Arrays in,
-arrays out: the agent loader reads the shipped parameters.
+forget to open it" stays positive while "don't open it" does not. A fourth class, ``unknown``, is a sentence that
+names something the env does not have ("open the hinged cabinet", "push the orange ball ..."), learnt from the
+project's positive sentences with a word naming their goal's objects swapped for a word the env never uses. A few
+heads are kept (``PolarityModel``); their mean probabilities are what an agent reads. The model can fine-tune the
+encoder's top layers with the heads (``PolarityConfig.tuned_layers``); the shipped one does not, since that read the
+held-out half worse. Arrays in, arrays out: the agent loader reads the shipped parameters.
 """
 
 from __future__ import annotations
@@ -26,9 +28,9 @@ from tqdm.auto import tqdm
 from talar_jax.language.bert import BertConfig, EncoderTop, top_and_head, with_pretrained_top
 from talar_jax.language.cache import TOKEN_READOUT, TOKEN_SLOTS, max_word_pieces, sentence_features
 from talar_jax.language.encoder import BertEncoder
-from talar_jax.language.polarity import LABELS
+from talar_jax.language.polarity import CLASSES
 
-POSITIVE, NEGATED, OPPOSITE = range(len(LABELS))
+POSITIVE, NEGATED, OPPOSITE, UNKNOWN = range(len(CLASSES))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,8 +59,11 @@ class PolarityConfig:
     token_dropout: float = 0.25
     """Share of word pieces dropped whole while fitting, so that no single piece decides the label: the encoder
     carries a negation into the states of the words around it, and a frame never read still shows there."""
-    steps: int = 600
-    """Adam steps per ensemble member."""
+    steps: int = 2000
+    """Adam steps per ensemble member. 600 before the ``unknown`` class; with it, on the development split (kitchen /
+    CLEVR, share acted on) 600 steps left negations at 4.7 / 2.6 % and positives at 91.4 / 92.9 %, 1200 steps 1.9 /
+    1.5 % and 93.4 / 95.2 %, 2000 steps 1.4 / 0.8 % and 93.7 / 95.6 %, unknown sentences 2.2 / 0.3 % (three classes
+    at 600 steps: 1.1 / 0.6 % and 92.2 / 94.6 %; at 1200: 0.4 / 0.5 % and 93.4 / 95.4 %)."""
     batch_size: int = 128
     learning_rate: float = 1e-3
     weight_decay: float = 1e-2
@@ -72,11 +77,18 @@ class PolarityConfig:
     top_learning_rate: float = 5e-5
     """Adam's step size for the fine-tuned layers, well below the heads' so that they stay near the encoder's."""
     act_threshold: float = 0.5
-    """An agent acts on a sentence only when the ensemble's probability of ``positive`` reaches this."""
+    """An agent acts on a sentence only when the ensemble's probability of ``positive`` (with ``unknown``'s below
+    ``unknown_threshold``) reaches this (``judged_classes``)."""
+    unknown_threshold: float = 0.9
+    """An agent refuses a sentence as naming something it does not know only when the probability of ``unknown``
+    reaches this. Refused at 0.5, kitchen development phrasings with a word the swaps taught to be strange ("open
+    microwave pls", "Set the kettle on the hob.") lost 3 of 90 sentences; a weaker refusal keeps them."""
+    classes: int = len(CLASSES)
+    """How many of ``CLASSES`` the classifier tells apart: 3 for one fitted before the ``unknown`` class, 4 since."""
 
 
 class PolarityClassifier(nn.Module):
-    """(B, T, D) token states, zero after a sentence's last piece -> (B, 3) logits over ``LABELS``."""
+    """(B, T, D) token states, zero after a sentence's last piece -> (B, classes) logits over ``CLASSES``."""
 
     config: PolarityConfig
 
@@ -92,12 +104,12 @@ class PolarityClassifier(nn.Module):
         weights = jax.nn.softmax(scores, axis=1)
         pooled = jnp.einsum("bth,btd->bhd", weights, hidden).reshape(tokens.shape[0], -1)
         strongest = jnp.max(jnp.where(mask[..., None], hidden, -1e9), axis=1)  # (B, H)
-        return nn.Dense(len(LABELS))(jnp.concatenate([pooled, strongest], axis=-1))
+        return nn.Dense(self.config.classes)(jnp.concatenate([pooled, strongest], axis=-1))
 
 
 class PolarityModel(nn.Module):
     """The classifier an agent reads: ``config.members`` heads (``PolarityClassifier``) over one set of token states,
-    (B, T, D) -> (members, B, 3) logits. With ``config.tuned_layers`` > 0 the states are the ones entering the
+    (B, T, D) -> (members, B, classes) logits. With ``config.tuned_layers`` > 0 the states are the ones entering the
     encoder's top layers (``polarity_states``), which an ``EncoderTop`` fine-tuned with the heads turns into the
     states the heads read: frozen sentence-similarity states place "turn off X" next to "turn on X", and a top layer
     that moves can re-read "off", "close" or "don't" in context. The heads share the top (one fine-tuned layer is
@@ -149,8 +161,8 @@ def fit_polarity(
     on its own seed and batch order (the most diverse ensemble); with ``tuned_layers`` the heads are fitted together
     with the top, which starts from ``encoder``'s weights and moves at ``top_learning_rate`` (one fine-tuned layer for
     all heads, since it is most of the parameters). Deterministic for given inputs."""
-    weights = len(labels) / (len(LABELS) * np.maximum(np.bincount(labels, minlength=len(LABELS)), 1))
-    weights = jnp.asarray(weights * np.where(np.arange(len(LABELS)) == POSITIVE, config.positive_weight, 1.0))
+    weights = len(labels) / (config.classes * np.maximum(np.bincount(labels, minlength=config.classes), 1))
+    weights = jnp.asarray(weights * np.where(np.arange(config.classes) == POSITIVE, config.positive_weight, 1.0))
     heads = optax.adamw(config.learning_rate, weight_decay=config.weight_decay)
     if not config.tuned_layers:
         single = PolarityClassifier(config)
@@ -177,7 +189,7 @@ def _fit(model, params, optimizer, features, labels, weights, config: PolarityCo
     @jax.jit
     def step(params, state, tokens, targets, key):
         def loss(p):
-            logits = model.apply(p, tokens, train=True, rngs={"dropout": key})  # ([members,] B, 3)
+            logits = model.apply(p, tokens, train=True, rngs={"dropout": key})  # ([members,] B, classes)
             every = jnp.broadcast_to(targets, logits.shape[:-1])
             return jnp.mean(optax.softmax_cross_entropy_with_integer_labels(logits, every) * weights[every])
 
@@ -196,13 +208,13 @@ def _fit(model, params, optimizer, features, labels, weights, config: PolarityCo
 def polarity_probabilities(
     params: dict, features: np.ndarray, config: PolarityConfig = PolarityConfig(), encoder: BertConfig | None = None
 ) -> np.ndarray:
-    """(N, 3) the heads' mean probability of each of ``LABELS`` for (N, T, D) states (``polarity_states``);
+    """(N, classes) the heads' mean probability of each of ``CLASSES`` for (N, T, D) states (``polarity_states``);
     ``encoder``: the encoder's config, for a model with ``tuned_layers``."""
     apply = _probabilities(config, encoder)
     params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), params)
     rows = range(0, len(features), 512)
     out = [np.asarray(apply(params, jnp.asarray(features[i : i + 512], jnp.float32))) for i in rows]
-    return np.concatenate(out) if out else np.zeros((0, len(LABELS)), np.float32)
+    return np.concatenate(out) if out else np.zeros((0, config.classes), np.float32)
 
 
 @functools.cache
@@ -210,6 +222,19 @@ def _probabilities(config: PolarityConfig, encoder: BertConfig | None):
     """The compiled mean probability of the heads, one per model (an agent judges sentence after sentence)."""
     model = PolarityModel(config, encoder)
     return jax.jit(lambda params, states: jnp.mean(jax.nn.softmax(model.apply(params, states), axis=-1), axis=0))
+
+
+def judged_classes(probabilities: np.ndarray, config: PolarityConfig) -> np.ndarray:
+    """(N,) what an agent makes of each sentence of (N, classes) probabilities: ``POSITIVE`` when it acts;
+    ``UNKNOWN`` when the probability of unknown reaches ``config.unknown_threshold``; else, when the probability of
+    positive (and of unknown, below its threshold) is under ``config.act_threshold``, the likelier of ``NEGATED``
+    and ``OPPOSITE``. With three classes this is acting at a probability of positive of ``act_threshold``."""
+    probabilities = np.asarray(probabilities)
+    unknown = probabilities[:, UNKNOWN] if probabilities.shape[1] > UNKNOWN else np.zeros(len(probabilities))
+    refused = probabilities[:, POSITIVE] + unknown < config.act_threshold
+    polarity = np.where(probabilities[:, NEGATED] >= probabilities[:, OPPOSITE], NEGATED, OPPOSITE)
+    out = np.where(refused, polarity, POSITIVE)
+    return np.where(unknown >= config.unknown_threshold, UNKNOWN, out)
 
 
 def shipped_params(params: dict) -> dict:

@@ -26,10 +26,12 @@ class Verdict:
             ``max_candidates``, each at least its ``candidate_floor`` but always the first).
         familiarity: the sentence's largest cosine similarity to a training instruction (pooled encoder embedding).
         decoded: the goal the acting seed's own code decodes to (None when no training instruction has that code).
-        polarity: what the sentence asks of the task it names (``talar_jax.language.polarity.LABELS``): to do it
-            ("positive"), not to do it ("negated") or to undo it ("opposite"); the agent acts on positive ones only.
+        polarity: what the sentence asks of the task it names (``talar_jax.language.polarity.CLASSES``): to do it
+            ("positive"), not to do it ("negated") or to undo it ("opposite"), or whether it names something the
+            agent does not know ("unknown"); the agent acts on positive ones only.
         reason: why a sentence that names a known task is not acted on, in words for a person (for example
-            'asks for the opposite of "open the microwave door"'); None otherwise.
+            'asks for the opposite of "open the microwave door"', or 'names something this agent does not know');
+            None otherwise.
     """
 
     sentence: str

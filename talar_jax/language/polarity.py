@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
+from collections import Counter
 from collections.abc import Sequence
 from functools import cache
 from pathlib import Path
@@ -22,6 +24,13 @@ from talar_jax.language.instructions import load_instructions
 POLARITY_FILE = Path(__file__).resolve().parent / "data" / "polarity.json"
 LABELS: tuple[str, ...] = ("positive", "negated", "opposite")
 """What a sentence asks of its task: to do it, not to do it, or to undo it."""
+UNKNOWN = "unknown"
+CLASSES: tuple[str, ...] = (*LABELS, UNKNOWN)
+"""What the polarity classifier tells apart: the three ``LABELS``, and a sentence that names something the env does
+not have (``unknown_set``): another object, a colour no ball has, or one ball twice."""
+UNKNOWN_HELD_OUT_WORDS = 3
+"""Every third word of the swap vocabulary (in a seeded order) is held out: the held-out half of ``unknown_set``
+swaps in words the classifier never read in that place."""
 HALVES: tuple[str, ...] = ("train", "held_out")
 DEVELOPMENT_FRAMES, DEVELOPMENT_PHRASES, DEVELOPMENT_INSTRUCTIONS = 5, 4, 5
 """The development split (``polarity_set(env, development=True)``) holds out every fifth train frame, every fourth
@@ -189,3 +198,82 @@ def task_verb_phrases(env: str, goal: int, undo: bool = False, held_out: bool = 
         return [(_filled(base, clevr_slots()[goal]), _filled(gerund, clevr_slots()[goal])) for base, gerund in phrases]
     task = _ingredients()[env][kitchen_goal_names()[goal]]
     return [tuple(p) for p in task["undo" if undo else "do"]["held_out" if held_out else "train"]]
+
+
+def object_words(env: str) -> tuple[frozenset[str], ...]:
+    """Per goal, the words that name what it acts on, found from the polarity data. CLEVR: the colours of the goal's
+    two balls (``clevr_slots``). Kitchen: the words a task's done and undone states share (what stays when a task is
+    undone is the thing it acts on: "the microwave open" / "the microwave closed"), less the words the states of half
+    the tasks or more share ("the", "switched"), which name no one task's object."""
+    if env == "clevr":
+        return tuple(frozenset((slots["{subject}"], slots["{object}"])) for slots in clevr_slots())
+    shared = []
+    for name in kitchen_goal_names():
+        task = _ingredients()[env][name]
+        done, undone = (_words(" ".join(task[key]["train"])) for key in ("done", "undone"))
+        shared.append(done & undone)
+    counts = Counter(word for words in shared for word in words)
+    return tuple(frozenset(w for w in words if 2 * counts[w] < len(shared)) for words in shared)
+
+
+def swap_vocabulary(env: str, words: Sequence[str]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(train, held out) words to name something ``env`` does not have: ``words`` (e.g. the encoder's whole words,
+    ``BertEncoder.whole_words``) less every word of the env's polarity sentences (its training and test instructions
+    among them), split by a seeded order (every ``UNKNOWN_HELD_OUT_WORDS``-th held out)."""
+    known = set().union(*(_words(s) for s in polarity_set(env).sentences))
+    pool = sorted({w.lower() for w in words} - known)
+    order = np.random.default_rng(0).permutation(len(pool))
+    held = {pool[i] for i in order[::UNKNOWN_HELD_OUT_WORDS]}
+    return tuple(w for w in pool if w not in held), tuple(w for w in pool if w in held)
+
+
+def unknown_set(env: str, words: Sequence[str], development: bool = False) -> PolaritySet:
+    """Sentences that name something ``env`` does not have, all labelled ``UNKNOWN`` (deterministic): every positive
+    sentence of ``polarity_set`` with one word naming its goal's objects (``object_words``) swapped for a word of
+    ``swap_vocabulary(env, words)`` of the sentence's half, and for CLEVR also the same sentence with its second ball
+    given the first one's colour (no goal puts a ball beside itself). ``goals``: the goal of the sentence it was made
+    from. With ``development``, the train half alone, its ``held_out`` marking the development share: sentences
+    made from ``polarity_set``'s development share, or swapping in every fifth train word."""
+    polar, developing_rows = polarity_set(env), polarity_set(env, development=True)
+    developing = {s for s, d in zip(developing_rows.sentences, developing_rows.held_out, strict=True) if d}
+    train_words, held_words = swap_vocabulary(env, words)
+    objects = object_words(env)
+    rng = np.random.default_rng(1)
+    rows: dict[str, tuple[int, bool, bool]] = {}
+    for sentence, label, goal, held in zip(polar.sentences, polar.labels, polar.goals, polar.held_out, strict=True):
+        if label != 0:
+            continue
+        found = [m for m in re.finditer(r"[A-Za-z]+", sentence) if m.group().lower() in objects[goal]]
+        if not found:
+            continue
+        pool = held_words if held else train_words
+        index = int(rng.integers(len(pool)))
+        word = pool[index]
+        spot = found[int(rng.integers(len(found)))]
+        made = [_replaced(sentence, spot, word)]
+        if env == "clevr":
+            first, second = clevr_slots()[goal]["{subject}"], clevr_slots()[goal]["{object}"]
+            seconds = [m for m in found if m.group().lower() == second]
+            if seconds and any(m.group().lower() == first for m in found):
+                made.append(_replaced(sentence, seconds[-1], first))
+        for text in made:
+            developing_word = not held and index % DEVELOPMENT_FRAMES == DEVELOPMENT_FRAMES - 1
+            rows.setdefault(text, (int(goal), bool(held), sentence in developing or developing_word))
+    kept = [(s, g, h, d) for s, (g, h, d) in rows.items() if not (development and h)]
+    return PolaritySet(
+        env,
+        tuple(s for s, *_ in kept),
+        np.full(len(kept), CLASSES.index(UNKNOWN), np.int32),
+        np.array([g for _, g, _, _ in kept], np.int32),
+        np.array([d if development else h for _, _, h, d in kept], bool),
+    )
+
+
+def _words(text: str) -> set[str]:
+    return set(re.findall(r"[a-z]+", text.lower()))
+
+
+def _replaced(sentence: str, spot: re.Match, word: str) -> str:
+    """``sentence`` with the word at ``spot`` replaced by ``word``, capitalised as it was."""
+    word = word.capitalize() if spot.group()[0].isupper() else word
+    return sentence[: spot.start()] + word + sentence[spot.end() :]
