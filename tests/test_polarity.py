@@ -175,3 +175,123 @@ def test_fitting_is_deterministic():
     again = polarity_probabilities(fit_polarity(tokens, labels, config), tokens, config)
     np.testing.assert_array_equal(first, again)
     assert (first.argmax(1) == labels).mean() > 0.9
+
+
+def _swap_words() -> list[str]:
+    """Made-up words no env uses, and a few each env's instructions use (which must never be swapped in)."""
+    return [a + b + "zq" for a in "bcdfg" for b in "aeiou"] + ["microwave", "kettle", "red", "ball", "open", "push"]
+
+
+@pytest.mark.parametrize("env", ["kitchen", "clevr"])
+def test_the_unknown_set_is_deterministic_and_swaps_in_only_words_the_env_never_uses(env):
+    import re
+
+    from talar_jax.language import load_instructions
+
+    words = _swap_words()
+    first, again = sets.unknown_set(env, words), sets.unknown_set(env, words)
+    assert first.sentences == again.sentences and (first.held_out == again.held_out).all()
+    assert (
+        (first.labels == sets.CLASSES.index(sets.UNKNOWN)).all() and first.held_out.any() and not first.held_out.all()
+    )
+    train_words, held_words = sets.swap_vocabulary(env, words)
+    used = {w for s in load_instructions(env, "train").sentences for w in re.findall(r"[a-z]+", s.lower())}
+    assert not used & (set(train_words) | set(held_words)) and not set(train_words) & set(held_words)
+    polar = polarity_set(env)
+    rows = zip(polar.sentences, polar.labels, polar.goals, polar.held_out, strict=True)
+    positives = {s: (g, h) for s, label, g, h in rows if label == 0}
+    by_shape = {}
+    for sentence in positives:
+        by_shape.setdefault(len(sentence.split()), []).append(sentence)
+    twice = 0
+    for sentence, goal, held in zip(first.sentences, first.goals, first.held_out, strict=True):
+        assert sentence not in positives
+        # made from a positive sentence of its own half by changing one word that names its goal's objects
+        tokens = sentence.split()
+        sources = [s for s in by_shape[len(tokens)] if sum(a != b for a, b in zip(s.split(), tokens)) == 1]
+        changes = [
+            next(
+                (re.sub(r"\W", "", a).lower(), re.sub(r"\W", "", b).lower())
+                for a, b in zip(s.split(), tokens)
+                if a != b
+            )
+            for s in sources
+            if positives[s] == (goal, held)
+        ]
+        assert any(old in sets.object_words(env)[goal] for old, _ in changes)
+        new = changes[0][1]
+        if new in (held_words if held else train_words):
+            continue
+        twice += 1  # CLEVR: the second ball given the first one's colour
+        assert env == "clevr" and new == sets.clevr_slots()[goal]["{subject}"]
+    assert (twice > 0) == (env == "clevr")
+
+
+def test_object_words_name_what_a_goal_acts_on():
+    kitchen = dict(zip(sets.kitchen_goal_names(), sets.object_words("kitchen"), strict=True))
+    assert (
+        "microwave" in kitchen["microwave"] and "kettle" in kitchen["kettle"] and "cabinet" in kitchen["slide cabinet"]
+    )
+    assert not any("the" in words for words in kitchen.values())
+    assert sets.object_words("clevr")[0] == {sets.clevr_slots()[0]["{subject}"], sets.clevr_slots()[0]["{object}"]}
+
+
+def test_the_shipped_agents_refuse_held_out_sentences_naming_what_they_do_not_have(kitchen_agent):
+    """Held-out swapped sentences (never read in fitting) are refused, saying why; thresholds below what the shipped
+    classifier measured (results/abstention/polarity.md)."""
+    from talar_jax import agent
+
+    for name, loaded in (("kitchen", kitchen_agent), ("clevr", agent.load("clevr"))):
+        half = sets.unknown_set(name, loaded.encoder.whole_words()).half(True)
+        picked = list(half.sentences[:: max(1, len(half.sentences) // 60)])
+        verdicts = loaded.judge(picked)
+        assert np.mean([not v.acts for v in verdicts]) >= 0.9
+        unknown = [v for v in verdicts if v.polarity == "unknown"]
+        assert len(unknown) >= 0.7 * len(picked) and all(not v.acts for v in unknown)
+        # said so where the agent would otherwise have acted or asked; one refused as naming no goal keeps that reason
+        refused = [v for v in unknown if v.reason is not None]
+        assert refused and all(v.reason == "names something this agent does not know" for v in refused)
+        assert "does not know" in refused[0].describe(loaded.env.goal_names) and refused[0].to_json()["reason"]
+
+
+def test_a_classifier_recorded_before_the_unknown_class_is_read_with_three(kitchen_agent, tmp_path):
+    from talar_jax.agent import POLARITY_PARAMS, POLARITY_RECORD, SHIPPED_AGENTS_DIR, load_polarity
+
+    record = json.loads((SHIPPED_AGENTS_DIR / POLARITY_RECORD).read_text())
+    record["config"].pop("classes", None)
+    record["labels"] = list(LABELS)
+    (tmp_path / POLARITY_RECORD).write_text(json.dumps(record))
+    (tmp_path / POLARITY_PARAMS).write_bytes((SHIPPED_AGENTS_DIR / POLARITY_PARAMS).read_bytes())
+    assert load_polarity(kitchen_agent.encoder, tmp_path)[1].classes == len(LABELS)
+
+
+def test_a_class_count_the_classifier_cannot_have_is_one_usage_error(capsys):
+    from experiments import polarity as command
+    from tests.helpers import one_line_error
+
+    assert "--classes must be 3" in one_line_error(capsys, command.main, ["--classes", "5"])
+
+
+def test_an_agent_refuses_as_unknown_only_past_its_own_threshold():
+    from talar_jax.confidence.polarity import (
+        NEGATED,
+        OPPOSITE,
+        POSITIVE,
+        UNKNOWN,
+        PolarityConfig,
+        judged_classes,
+    )
+
+    config = PolarityConfig(act_threshold=0.5, unknown_threshold=0.9)
+    four = np.array(
+        [
+            [0.6, 0.1, 0.1, 0.2],  # acted on
+            [0.2, 0.1, 0.0, 0.7],  # unknown below its threshold counts with positive: acted on
+            [0.05, 0.0, 0.0, 0.95],  # refused as unknown
+            [0.3, 0.5, 0.1, 0.1],  # refused as negated
+            [0.2, 0.1, 0.6, 0.1],  # refused as opposite
+        ]
+    )
+    assert judged_classes(four, config).tolist() == [POSITIVE, POSITIVE, UNKNOWN, NEGATED, OPPOSITE]
+    three = np.array([[0.5, 0.3, 0.2], [0.49, 0.3, 0.21], [0.1, 0.2, 0.7]])  # a classifier before the unknown class
+    assert judged_classes(three, config).tolist() == [POSITIVE, NEGATED, OPPOSITE]
