@@ -30,7 +30,6 @@ from talar_jax.clauses import (
     piece_states,
     piece_targets,
     stored,
-    vocabulary_words,
 )
 from talar_jax.language import load_encoder
 from talar_jax.language.compound import compound_set
@@ -128,7 +127,7 @@ def run_command(argv: list[str] | None = None) -> dict:
         write_measures_report(record, args.report)
         return record
     config = ClauseParserConfig()
-    words = vocabulary_words(encoder) if config.role_share else ()
+    words = encoder.whole_words(min_length=2) if config.role_share else ()
     train = [
         s
         for seed, env in enumerate(ENVS)

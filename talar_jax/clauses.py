@@ -132,12 +132,6 @@ class Clause:
         return self.task or self.text
 
 
-def vocabulary_words(encoder) -> list[str]:
-    """The whole words of the encoder's word-piece vocabulary (letters only, two or more), sorted: what the
-    connectives of ``ClauseParserConfig.role_share`` are made of."""
-    return sorted(word for word in encoder.tokenizer.get_vocab() if word.isascii() and word.isalpha() and len(word) > 1)
-
-
 def piece_offsets(encoder, sentences: Sequence[str]) -> tuple[list[list[int]], list[list[tuple[int, int]]]]:
     """Word-piece ids (without [CLS]/[SEP]) and the character span of each piece, per sentence."""
     encodings = encoder.tokenizer.encode_batch(list(sentences), add_special_tokens=False)

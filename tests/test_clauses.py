@@ -85,11 +85,10 @@ def test_measuring_a_folder_without_a_parser_is_one_usage_error(tmp_path, capsys
     assert "holds no clauses.json" in err and "Traceback" not in err
 
 
-def test_vocabulary_words_are_whole_words():
-    from talar_jax.clauses import vocabulary_words
+def test_the_role_joins_draw_whole_words():
     from talar_jax.language import load_encoder
 
-    words = vocabulary_words(load_encoder(None))
+    words = load_encoder(None).whole_words(min_length=2)  # what experiments.clauses joins clauses with
     assert len(words) > 10_000 and "microwave" in words
     assert all(w.isalpha() and len(w) > 1 for w in words) and not any(w.startswith("##") for w in words)
 
