@@ -204,7 +204,7 @@ class KitchenEnv(Env):
         self._control_dt = float(self.config.timestep * self.config.substeps)
         self._num_tasks = len(tasks.ALL_TASK_NAMES) if self.config.hinge_cabinet_task else tasks.NUM_TASKS
         self._posture_targets = tasks.posture_targets(self.config.posture_targets, self._num_tasks)
-        self._start_postures = self._read_start_postures()
+        self._ended_postures = self._read_ended_postures()
 
     def load_model(self) -> mujoco.MjModel:
         if self.config.arm_collisions:
@@ -383,20 +383,17 @@ class KitchenEnv(Env):
         obs = jnp.where(at_goal, goal_obs, jnp.asarray(tasks.INIT_OBS))
         return jnp.asarray(self._init_qpos).at[self._qpos_index].set(obs[self._obs_index])
 
-    def _read_start_postures(self) -> np.ndarray:
-        """(num_goals, K, 9) the postures ``arm_after`` draws from: the scripted one (K = 1) under
-        ``start_arm='scripted'``, else the recorded endings (``ENDED_POSTURES_FILE``), the scripted posture standing in
-        for the sub-tasks the file lacks."""
-        scripted = tasks.posture_targets("scripted", self._num_tasks)[:, None]
+    def _read_ended_postures(self) -> np.ndarray | None:
+        """(num_goals, K, 9) the recorded endings ``arm_after`` draws from (``ENDED_POSTURES_FILE``), the scripted
+        posture standing in for the sub-tasks the file lacks; None under ``start_arm='scripted'``, which reads none."""
         if self.config.start_arm == "scripted":
-            return scripted
+            return None
         if not ENDED_POSTURES_FILE.is_file():
             raise FileNotFoundError(f"start_arm={self.config.start_arm!r} reads {ENDED_POSTURES_FILE}: missing")
         with np.load(ENDED_POSTURES_FILE) as recorded:
             ended = np.asarray(recorded["postures"], np.float32)[: self._num_tasks]
-        missing = self._num_tasks - len(ended)
-        filler = np.repeat(scripted[len(ended) :], ended.shape[1], axis=1) if missing else ended[:0]
-        return np.concatenate([ended, filler])
+        scripted = tasks.posture_targets("scripted", self._num_tasks)[len(ended) :, None]
+        return np.concatenate([ended, np.repeat(scripted, ended.shape[1], axis=1)])
 
     def arm_after(self, rng: jax.Array, done: jax.Array, qpos: jax.Array) -> jax.Array:
         """``qpos`` with the arm at a posture in which one of the ``done`` sub-tasks (uniformly) leaves it, kept when
@@ -409,7 +406,7 @@ class KitchenEnv(Env):
         if self.config.start_arm != "scripted":
             # keys of their own, so that 'scripted' draws exactly what it always drew
             rng_pick, rng_which = jax.random.split(jax.random.fold_in(rng, 3))
-            endings = jnp.asarray(self._start_postures)[last]  # (K, 9)
+            endings = jnp.asarray(self._ended_postures)[last]  # (K, 9)
             ended = endings[jax.random.randint(rng_pick, (), 0, endings.shape[0])]
             use_ended = jnp.bool_(True) if self.config.start_arm == "ended" else jax.random.bernoulli(rng_which)
             posture = jnp.where(use_ended, ended, posture)
